@@ -1,0 +1,325 @@
+"""The scene as the core sees it: plain, typed, validated numpy arrays.
+
+Everything here is bpy-free. ``pdic_addon.extract`` builds a :class:`Scene`
+from Blender's evaluated depsgraph; tests and benchmarks build them directly.
+
+Coordinates are *scene-local*: world positions minus :attr:`Scene.origin_world`
+(the centre of the bounding box, kept in float64). Working relative to the
+centre is what keeps a scene placed 1e5 units from the world origin as
+accurate as one at the origin once positions are cast to float32 for Embree.
+
+Units follow Blender (see DEVELOPERS.md): lengths in scene units, light power
+in watts, sun strength as irradiance (W/m^2), emission and world strength as
+radiance (W/m^2/sr).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Union
+
+import numpy as np
+
+
+class SceneError(ValueError):
+    """Bad input that makes a bake impossible; the message names the culprit."""
+
+
+def _require(array: np.ndarray, name: str, dtype, shape_tail: tuple) -> np.ndarray:
+    """Return ``array`` as a C-contiguous ``dtype`` array, checking its trailing shape."""
+    out = np.ascontiguousarray(array, dtype=dtype)
+    if out.shape[1:] != shape_tail and not (shape_tail == () and out.ndim == 1):
+        raise SceneError(f"{name}: expected shape (n, {', '.join(map(str, shape_tail))}), got {out.shape}")
+    return out
+
+
+# --------------------------------------------------------------------------- geometry
+@dataclass(frozen=True)
+class Geometry:
+    """All triangles of the scene, baked or not (struct of arrays, T triangles).
+
+    Memory: 72 + 36 + 24 + 4 + 4 = 140 bytes per triangle.
+
+    Attributes
+    ----------
+    positions : (T, 3, 3) float64, scene-local corner positions.
+    normals : (T, 3, 3) float32, unit shading normals per corner (smooth or flat,
+        as Blender's corner normals); they point to the side Cycles bakes.
+    uvs : (T, 3, 2) float32, the material's texture coordinates per corner
+        (zeros where the mesh has no UV map).
+    material : (T,) int32, index into :class:`Materials`.
+    target : (T,) int32, index into :attr:`Scene.targets` of the bake target the
+        triangle belongs to, or -1 for occluder-only geometry (instances, objects
+        not selected for baking).
+    """
+
+    positions: np.ndarray
+    normals: np.ndarray
+    uvs: np.ndarray
+    material: np.ndarray
+    target: np.ndarray
+
+    def __post_init__(self):
+        object.__setattr__(self, "positions", _require(self.positions, "positions", np.float64, (3, 3)))
+        object.__setattr__(self, "normals", _require(self.normals, "normals", np.float32, (3, 3)))
+        object.__setattr__(self, "uvs", _require(self.uvs, "uvs", np.float32, (3, 2)))
+        object.__setattr__(self, "material", _require(self.material, "material", np.int32, ()))
+        object.__setattr__(self, "target", _require(self.target, "target", np.int32, ()))
+        n = len(self.positions)
+        for name in ("normals", "uvs", "material", "target"):
+            if len(getattr(self, name)) != n:
+                raise SceneError(f"geometry.{name} has {len(getattr(self, name))} rows, positions has {n}")
+        if not np.isfinite(self.positions).all():
+            raise SceneError("geometry has non-finite vertex positions")
+
+    @property
+    def count(self) -> int:
+        return len(self.positions)
+
+    def face_normals(self) -> np.ndarray:
+        """(T, 3) float64 unit geometric normals (right-handed winding); zero for degenerate triangles."""
+        p = self.positions
+        n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
+    def areas(self) -> np.ndarray:
+        """(T,) float64 triangle areas in scene units squared."""
+        p = self.positions
+        return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+
+
+# --------------------------------------------------------------------------- materials
+@dataclass(frozen=True)
+class Texture:
+    """A base-colour image in linear RGB, sampled with repeat wrapping.
+
+    pixels : (H, W, 3) float32, linear (sRGB images are decoded at extraction);
+        row 0 is the *bottom* of the image, as in Blender's ``Image.pixels``.
+    """
+
+    name: str
+    pixels: np.ndarray
+    interpolation: str = "Linear"  # "Linear" or "Closest", as Blender's Image Texture node
+
+    def __post_init__(self):
+        px = np.ascontiguousarray(self.pixels, dtype=np.float32)
+        if px.ndim != 3 or px.shape[2] != 3 or px.shape[0] < 1 or px.shape[1] < 1:
+            raise SceneError(f"texture {self.name!r}: expected (H, W, 3) pixels, got {px.shape}")
+        object.__setattr__(self, "pixels", np.nan_to_num(px, nan=0.0, posinf=0.0, neginf=0.0))
+
+
+@dataclass(frozen=True)
+class Materials:
+    """Diffuse materials (struct of arrays, M materials).
+
+    names : M material names (for messages).
+    base_color : (M, 3) float32 linear albedo in [0, 1] (Principled Base Color).
+    texture : (M,) int32 index into :attr:`Scene.textures`, or -1 for a constant
+        base colour. A texture replaces ``base_color``.
+    emission : (M, 3) float32 emitted radiance, W/m^2/sr (Emission Color x Strength).
+    """
+
+    names: tuple
+    base_color: np.ndarray
+    texture: np.ndarray
+    emission: np.ndarray
+
+    def __post_init__(self):
+        object.__setattr__(self, "names", tuple(self.names))
+        object.__setattr__(self, "base_color", np.clip(_require(self.base_color, "base_color", np.float32, (3,)), 0.0, 1.0))
+        object.__setattr__(self, "texture", _require(self.texture, "texture", np.int32, ()))
+        emission = _require(self.emission, "emission", np.float32, (3,))
+        object.__setattr__(self, "emission", np.maximum(emission, 0.0))
+        m = len(self.names)
+        if not (len(self.base_color) == len(self.texture) == len(self.emission) == m):
+            raise SceneError("materials: names, base_color, texture and emission differ in length")
+        if not (np.isfinite(self.base_color).all() and np.isfinite(self.emission).all()):
+            raise SceneError("materials: non-finite base colour or emission")
+
+    @staticmethod
+    def default(count: int = 1) -> "Materials":
+        """``count`` grey (0.8) non-emissive materials: Blender's default surface."""
+        return Materials(
+            names=tuple(f"default{i}" for i in range(count)),
+            base_color=np.full((count, 3), 0.8, np.float32),
+            texture=np.full(count, -1, np.int32),
+            emission=np.zeros((count, 3), np.float32),
+        )
+
+    @property
+    def count(self) -> int:
+        return len(self.names)
+
+
+# --------------------------------------------------------------------------- lights
+# All light colours are linear RGB multiplied into the power; directions are unit
+# vectors in scene-local space. Every light emits from the side it faces.
+@dataclass(frozen=True)
+class PointLight:
+    """Point light; with ``radius`` > 0 a sphere light (Blender's soft radius).
+
+    power : (3,) watts per channel. Irradiance at distance d facing it: P / (4 pi d^2).
+    """
+
+    name: str
+    position: np.ndarray
+    power: np.ndarray
+    radius: float = 0.0
+
+
+@dataclass(frozen=True)
+class SpotLight:
+    """Spot light: a point light masked by a cone (power is that of the full sphere, as Blender).
+
+    direction : (3,) unit axis of the cone.
+    half_angle : radians, half of Blender's ``spot_size``.
+    blend : [0, 1], Blender's ``spot_blend`` (smoothstep edge width).
+    """
+
+    name: str
+    position: np.ndarray
+    direction: np.ndarray
+    power: np.ndarray
+    half_angle: float
+    blend: float
+    radius: float = 0.0
+
+
+@dataclass(frozen=True)
+class SunLight:
+    """Directional light. ``direction`` points *from* the scene *towards* the sun.
+
+    irradiance : (3,) W/m^2 on a surface facing the sun (Blender's strength x colour).
+    half_angle : radians, half of Blender's ``angle`` (angular diameter).
+    """
+
+    name: str
+    direction: np.ndarray
+    irradiance: np.ndarray
+    half_angle: float = 0.0
+
+
+@dataclass(frozen=True)
+class AreaLight:
+    """One-sided area light emitting along ``normal`` with uniform radiance.
+
+    shape : "SQUARE", "RECTANGLE", "DISK" or "ELLIPSE".
+    axis_u, axis_v : (3,) unit in-plane axes; ``size_u``, ``size_v`` the full extents
+        (diameters for DISK/ELLIPSE) in scene units.
+    radiance : (3,) W/m^2/sr; Blender's power P gives radiance P / (pi * area).
+    """
+
+    name: str
+    position: np.ndarray
+    normal: np.ndarray
+    axis_u: np.ndarray
+    axis_v: np.ndarray
+    size_u: float
+    size_v: float
+    shape: str
+    radiance: np.ndarray
+
+    @property
+    def area(self) -> float:
+        if self.shape in ("DISK", "ELLIPSE"):
+            return float(np.pi * 0.25 * self.size_u * self.size_v)
+        return float(self.size_u * self.size_v)
+
+
+Light = Union[PointLight, SpotLight, SunLight, AreaLight]
+
+
+@dataclass(frozen=True)
+class World:
+    """Uniform environment: radiance (3,) W/m^2/sr. An unoccluded surface receives E = pi * radiance."""
+
+    radiance: np.ndarray = field(default_factory=lambda: np.zeros(3, np.float32))
+
+    @property
+    def is_black(self) -> bool:
+        return not np.any(np.asarray(self.radiance) > 0)
+
+
+# --------------------------------------------------------------------------- bake targets
+@dataclass(frozen=True)
+class BakeTarget:
+    """One object that receives a light map.
+
+    name : object name (for messages, file names and the manifest).
+    triangles : (t,) int64 indices into :class:`Geometry` of this object's triangles.
+    lightmap_uv : (t, 3, 2) float32 light-map UVs per corner, in [0, 1].
+    width, height : light-map resolution in texels.
+    """
+
+    name: str
+    triangles: np.ndarray
+    lightmap_uv: np.ndarray
+    width: int
+    height: int
+
+    def __post_init__(self):
+        object.__setattr__(self, "triangles", np.ascontiguousarray(self.triangles, dtype=np.int64))
+        uv = _require(self.lightmap_uv, f"{self.name}: lightmap_uv", np.float32, (3, 2))
+        object.__setattr__(self, "lightmap_uv", uv)
+        if len(uv) != len(self.triangles):
+            raise SceneError(f"{self.name}: {len(uv)} light-map UV triangles for {len(self.triangles)} triangles")
+        if self.width < 1 or self.height < 1:
+            raise SceneError(f"{self.name}: light-map resolution {self.width}x{self.height} is empty")
+
+
+# --------------------------------------------------------------------------- scene
+@dataclass(frozen=True)
+class Scene:
+    """Everything a bake needs, in scene-local coordinates."""
+
+    geometry: Geometry
+    materials: Materials
+    textures: tuple = ()
+    lights: tuple = ()
+    world: World = field(default_factory=World)
+    targets: tuple = ()
+    origin_world: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def __post_init__(self):
+        object.__setattr__(self, "textures", tuple(self.textures))
+        object.__setattr__(self, "lights", tuple(self.lights))
+        object.__setattr__(self, "targets", tuple(self.targets))
+        g, m = self.geometry, self.materials
+        if g.count and (g.material.min() < 0 or g.material.max() >= m.count):
+            raise SceneError("geometry refers to a material index out of range")
+        bad = m.texture[(m.texture >= len(self.textures))]
+        if len(bad):
+            raise SceneError("a material refers to a texture index out of range")
+
+    @property
+    def extent(self) -> float:
+        """Diagonal of the bounding box in scene units (at least 1e-12); sets ray offsets and radii."""
+        if self.geometry.count == 0:
+            return 1.0
+        p = self.geometry.positions.reshape(-1, 3)
+        return float(max(np.linalg.norm(p.max(0) - p.min(0)), 1e-12))
+
+    @property
+    def emissive_triangles(self) -> np.ndarray:
+        """(e,) int64 indices of triangles whose material emits."""
+        emits = np.any(self.materials.emission > 0, axis=1)
+        return np.flatnonzero(emits[self.geometry.material])
+
+    def has_light(self) -> bool:
+        """True if anything in the scene emits: a light with power, an emissive triangle or the world."""
+        powered = any(np.any(np.asarray(getattr(l, "power", getattr(l, "irradiance", getattr(l, "radiance", 0)))) > 0) for l in self.lights)
+        return powered or len(self.emissive_triangles) > 0 or not self.world.is_black
+
+
+def recentre(positions_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Split world positions (..., 3) float64 into (scene-local positions, origin_world).
+
+    The origin is the bounding-box centre, so float32 ray tracing keeps full
+    relative precision however far the scene sits from the world origin.
+    """
+    p = np.asarray(positions_world, dtype=np.float64)
+    flat = p.reshape(-1, 3)
+    if len(flat) == 0:
+        return p.copy(), np.zeros(3)
+    origin = 0.5 * (flat.min(0) + flat.max(0))
+    return p - origin, origin

@@ -1,0 +1,104 @@
+"""Bake settings: one frozen, typed dataclass that crosses the bpy border once.
+
+Every field states its meaning, unit and typical value (the README's settings
+table is generated from the same words). Quality presets are named bundles of
+these fields; :func:`preset` returns them.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+QUALITIES = ("PREVIEW", "FINAL", "CUSTOM")
+
+
+@dataclass(frozen=True)
+class BakeSettings:
+    # -- what to compute ---------------------------------------------------
+    quality: str = "FINAL"
+    """PREVIEW = passes 1-2 (photon map + coarse cache); FINAL = passes 1-3 (refined cache)."""
+    direct: bool = True
+    """Bake direct light (shadow rays from every texel sample to every light)."""
+    indirect: bool = True
+    """Bake indirect light from the photon-driven irradiance cache."""
+
+    # -- pass 1: photon map ------------------------------------------------
+    photons: int = 250_000
+    """Photons emitted (the budget), shared among lights by power. Typical 100k-4M."""
+    max_bounces: int = 6
+    """Diffuse bounces a photon may make (the paper uses 4 for Cornell, up to 9)."""
+
+    # -- pass 2: irradiance cache -----------------------------------------
+    a: float = 0.4
+    """Ward's accuracy a: records interpolate where w_k > 1/a; zone of influence radius a*R_k. Typical 0.2-0.5."""
+    r_nearest: int = 16
+    """Photons whose last-hit distances give R_k (harmonic mean, Figure 3)."""
+    r_min_texels: float = 2.0
+    """R_min as a multiple of the largest texel's world size."""
+    r_max_fraction: float = 0.1
+    """R_max as a fraction of the scene diagonal."""
+
+    # -- pass 3: refinement -------------------------------------------------
+    hemisphere_theta: int = 12
+    """Stratified hemisphere: theta rows (cosine-weighted, equal-weight cells)."""
+    hemisphere_phi: int = 24
+    """Stratified hemisphere: phi columns. theta x phi = 288 cells by default."""
+    reuse_photon_paths: bool = True
+    """Fill cells with virtual rays from photon paths (the paper); False = standard final gathering."""
+    gradients: bool = True
+    """Interpolate with rotational and translational irradiance gradients."""
+
+    # -- light maps -------------------------------------------------------
+    default_resolution: int = 256
+    """Light-map width and height for an object without an override (when texel_density is 0)."""
+    texel_density: float = 0.0
+    """Texels per scene unit; 0 uses default_resolution. Typical 8-64 for metre-scale scenes."""
+    min_resolution: int = 16
+    max_resolution: int = 4096
+    padding: int = 2
+    """Texels of gutter between charts (xatlas padding); dilation fills it."""
+    texel_samples: int = 2
+    """Sub-samples per texel axis (2 = 2x2 points per texel) for rasterisation."""
+    direct_samples: int = 16
+    """Shadow-ray samples per texel sample point for soft lights (area, sun angle, soft radius, world)."""
+
+    # -- run ----------------------------------------------------------------
+    seed: int = 0
+    """Seed of every random stream; the same seed gives the same light maps."""
+    threads: int = 0
+    """Worker threads; 0 = all cores."""
+
+    def __post_init__(self):
+        if self.quality not in QUALITIES:
+            raise ValueError(f"quality must be one of {QUALITIES}, got {self.quality!r}")
+        checks = {
+            "photons": self.photons >= 0,
+            "max_bounces": self.max_bounces >= 1,
+            "a": 0.0 < self.a <= 2.0,
+            "r_nearest": self.r_nearest >= 1,
+            "hemisphere_theta": self.hemisphere_theta >= 1,
+            "hemisphere_phi": self.hemisphere_phi >= 1,
+            "default_resolution": 1 <= self.default_resolution <= 16384,
+            "texel_density": self.texel_density >= 0,
+            "padding": self.padding >= 0,
+            "texel_samples": 1 <= self.texel_samples <= 8,
+            "direct_samples": self.direct_samples >= 1,
+            "threads": self.threads >= 0,
+        }
+        bad = [k for k, ok in checks.items() if not ok]
+        if bad:
+            raise ValueError("invalid bake settings: " + ", ".join(f"{k}={getattr(self, k)!r}" for k in bad))
+
+    @property
+    def refine(self) -> bool:
+        """Run pass 3 (refinement)?"""
+        return self.quality != "PREVIEW"
+
+
+def preset(quality: str, **overrides) -> BakeSettings:
+    """Settings of a named quality preset, with explicit overrides applied."""
+    base = {
+        "PREVIEW": BakeSettings(quality="PREVIEW", photons=250_000, direct_samples=8),
+        "FINAL": BakeSettings(quality="FINAL"),
+        "CUSTOM": BakeSettings(quality="CUSTOM"),
+    }[quality.upper()]
+    return replace(base, **overrides)

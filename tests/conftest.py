@@ -1,0 +1,32 @@
+"""Shared test set-up: the repo as package ``pdic``, a clean Blender around every bpy test."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+import pdic_bootstrap  # noqa: E402
+
+pdic_bootstrap.load()
+
+SHARED = ROOT.parent / "shared"
+SCENES = SHARED / "scenes"
+
+
+@pytest.fixture
+def blender():
+    """A factory-fresh Blender (bpy wheel), reset again after the test."""
+    import bpy
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    yield bpy
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+
+
+@pytest.fixture
+def rng():
+    import numpy as np
+
+    return np.random.default_rng(12345)
