@@ -13,6 +13,7 @@ on one thread, 11.5 M/s on two, for a 20k-triangle height field).
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -73,6 +74,18 @@ class RayCaster:
             # Embree rejects no triangle for being degenerate, it just never reports hits on it.
             mesh_construction.TriangleMesh(self._scene, positions.astype(np.float32))
         self.rays_cast = 0  # closest-hit and occlusion rays traced so far (statistics)
+
+    def serial(self) -> "RayCaster":
+        """A view sharing this BVH that traces on the calling thread.
+
+        Stages that already run their chunks on the executor use it, so a
+        worker never waits on the same pool it runs in. Its :attr:`rays_cast`
+        counts separately.
+        """
+        view = copy.copy(self)
+        view.executor = serial_executor()
+        view.rays_cast = 0
+        return view
 
     # ---------------------------------------------------------------- helpers
     def offset_origins(self, origins: np.ndarray, normals: np.ndarray | None, directions: np.ndarray) -> np.ndarray:

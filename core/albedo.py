@@ -1,0 +1,81 @@
+"""Diffuse albedo (linear base colour) at surface hits: constant or textured.
+
+Photons use it for Russian roulette and the reflected power; the final
+shading of a texel does not (light maps hold irradiance / pi, without colour).
+Textures are sampled the way Blender's Image Texture node does with repeat
+extension: pixel centres at ((i + 0.5) / W, (j + 0.5) / H), row 0 at v = 0.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .scene import Scene, Texture
+
+
+def albedo(scene: Scene, triangles: np.ndarray, barycentric: np.ndarray) -> np.ndarray:
+    """Linear base colour at hit points.
+
+    Parameters
+    ----------
+    scene : the scene (materials, textures, per-corner texture UVs).
+    triangles : (n,) int64 triangle indices into ``scene.geometry``.
+    barycentric : (n, 2) float64 Embree (u, v): hit = (1-u-v) p0 + u p1 + v p2.
+
+    Returns
+    -------
+    (n, 3) float32 albedo in [0, 1] (textures are clipped to [0, 1] too, so a
+    bright HDR texel cannot make a photon gain energy).
+    """
+    triangles = np.asarray(triangles, dtype=np.int64)
+    barycentric = np.asarray(barycentric, dtype=np.float64)
+    if len(triangles) and (triangles.min() < 0 or triangles.max() >= scene.geometry.count):
+        raise IndexError(f"albedo: triangle index out of range [0, {scene.geometry.count})")
+    material = scene.geometry.material[triangles]
+    out = scene.materials.base_color[material].astype(np.float32)
+    texture = scene.materials.texture[material]
+    for k in np.unique(texture[texture >= 0]):
+        sel = np.flatnonzero(texture == k)
+        uv_corner = scene.geometry.uvs[triangles[sel]].astype(np.float64)  # (s, 3, 2)
+        b = barycentric[sel]
+        uv = (1.0 - b[:, 0:1] - b[:, 1:2]) * uv_corner[:, 0] + b[:, 0:1] * uv_corner[:, 1] + b[:, 1:2] * uv_corner[:, 2]
+        out[sel] = np.clip(sample_texture(scene.textures[k], uv), 0.0, 1.0)
+    return out
+
+
+def sample_texture(texture: Texture, uv: np.ndarray) -> np.ndarray:
+    """Texture colour at texture coordinates with repeat wrapping.
+
+    Parameters
+    ----------
+    texture : the image; ``interpolation`` "Linear" (bilinear) or "Closest".
+    uv : (n, 2) float64 texture coordinates (any real values; the image repeats).
+
+    Returns
+    -------
+    (n, 3) float32 linear colour.
+    """
+    px = texture.pixels
+    H, W = px.shape[:2]
+    uv = np.nan_to_num(np.asarray(uv, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    x = uv[:, 0] * W
+    y = uv[:, 1] * H
+    if texture.interpolation == "Closest":
+        i = np.floor(x).astype(np.int64) % W
+        j = np.floor(y).astype(np.int64) % H
+        return px[j, i]
+    if texture.interpolation != "Linear":
+        raise ValueError(f"texture {texture.name!r}: unsupported interpolation {texture.interpolation!r}")
+    # Bilinear between the four nearest pixel centres.
+    x -= 0.5
+    y -= 0.5
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    fx = (x - x0)[:, None].astype(np.float32)
+    fy = (y - y0)[:, None].astype(np.float32)
+    i0 = x0.astype(np.int64) % W
+    j0 = y0.astype(np.int64) % H
+    i1 = (i0 + 1) % W
+    j1 = (j0 + 1) % H
+    bottom = px[j0, i0] * (1 - fx) + px[j0, i1] * fx
+    top = px[j1, i0] * (1 - fx) + px[j1, i1] * fx
+    return bottom * (1 - fy) + top * fy

@@ -1,0 +1,307 @@
+"""Pass 2: the irradiance cache generated from the photon map (paper section 3.2, Algorithm 1).
+
+Algorithm 1, as implemented::
+
+    for each candidate (photon) c in a seeded random order with w_sum[c] < 1/a:
+        R_k  <- harmonic mean of |p_lh - p_k| over the n nearest indirect photons (Figure 3),
+                kept in [R_min, R_max] and neighbour-clamped [KBPZ06]
+        zone <- candidates and photons within a R_k whose Ward weight passes Equation 2
+        E_k  <- Epanechnikov density estimate of the indirect photons of the zone, bandwidth a R_k
+        create record k = (p_k, n_k, E_k, R_k)
+        for each candidate c' in the zone: w_sum[c'] += w_k(c'); E_sum[c'] += w_k(c') E_k
+
+**Threshold.** The paper writes both ``w_sum < 1/a`` (Algorithm 1) and
+``w_sum < a`` (text). We use ``w_sum < 1/a``: with Equation 2 a record only
+contributes where its weight exceeds 1/a, so ``w_sum >= 1/a`` holds exactly
+when at least one record covers the photon; for a < 1 the two readings then
+select the same photons (every accepted contribution alone exceeds 1/a > a),
+and ``1/a`` also stays meaningful for a >= 1.
+
+**Order.** Photons are walked in a seeded random permutation rather than
+storage order (which is grouped by bounce and light) so records spread evenly.
+
+**Neighbour clamping.** A new record's R_k is clamped against the records
+already near it (R_k <= R_j + |p_k - p_j|). After the walk, one min-plus pass
+makes the whole set consistent (one pass suffices: the result is 1-Lipschitz).
+Photon weights are not recomputed after that final pass; texels it leaves
+uncovered become hole records (section 3.4), which the light-map stage fills.
+
+Candidates are generic (positions + normals + a w_sum array): the photons in
+pass 2, and texel points left in holes at light-map time.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .photons import PhotonMap
+from .ward import accepted, ward_weight
+
+# Records created before the record kd-tree is rebuilt (neighbour clamping looks
+# at the tree plus this many recent records by brute force).
+_REBUILD_EVERY = 512
+# A candidate block scanned at once when looking for uncovered candidates.
+_BLOCK = 4096
+
+
+@dataclass
+class IrradianceCache:
+    """Irradiance records, struct of arrays (K records; 8*(3+3+3+1+9+9) + 4 + 1 + 1 = 230 bytes each).
+
+    p, n : (K, 3) float64 scene-local position and unit normal of each record.
+    E : (K, 3) float64 indirect irradiance E_k, W/m^2.
+    R : (K,) float64 harmonic mean distance R_k (zone of influence radius a R_k).
+    grad_r, grad_t : (K, 3, 3) float64 rotational / translational gradients [record, channel, xyz].
+    photons_used : (K,) int32 indirect photons in the density estimate of E_k.
+    hole : (K,) bool records created for light-map holes (section 3.4) rather than at photons.
+    refined : (K,) bool records whose E_k came from final gathering (pass 3).
+    """
+
+    p: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    n: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    E: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    R: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    grad_r: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    grad_t: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    photons_used: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    hole: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    refined: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+
+    def __len__(self) -> int:
+        return len(self.p)
+
+    def extend(self, other: "IrradianceCache") -> "IrradianceCache":
+        return IrradianceCache(*(np.concatenate([getattr(self, f), getattr(other, f)])
+                                 for f in self.__dataclass_fields__))
+
+    def take(self, index) -> "IrradianceCache":
+        return IrradianceCache(*(getattr(self, f)[index] for f in self.__dataclass_fields__))
+
+
+@dataclass(frozen=True)
+class CacheParameters:
+    """Parameters of Algorithm 1.
+
+    a : Ward's accuracy (zone radius a R_k, Equation 2 threshold 1/a).
+    r_nearest : photons in the harmonic-mean estimate of R_k.
+    R_min, R_max : bounds on R_k in scene units (tied to texel and scene size).
+    """
+
+    a: float
+    r_nearest: int
+    R_min: float
+    R_max: float
+
+
+@dataclass
+class Zones:
+    """Photons in each record's zone of influence, CSR: record k owns photon[start[k]:start[k+1]]."""
+
+    start: np.ndarray
+    photon: np.ndarray
+
+
+@dataclass
+class CacheBuildStats:
+    records: int = 0
+    kd_queries: int = 0
+    candidates_visited: int = 0
+
+
+class PhotonDensity:
+    """kd-trees over the photon map answering the two queries of each record creation."""
+
+    def __init__(self, photons: PhotonMap):
+        self.photons = photons
+        self.p = photons.p.astype(np.float64)
+        self.n = photons.n.astype(np.float64)
+        self.power = photons.power.astype(np.float64)
+        self.tree = cKDTree(self.p, leafsize=16, balanced_tree=False, compact_nodes=False)
+        indirect = np.flatnonzero(photons.is_indirect)
+        self.indirect_index = indirect
+        self.indirect_tree = cKDTree(self.p[indirect], leafsize=16, balanced_tree=False) if len(indirect) else None
+        self.last_hit = photons.last_hit
+        self.is_indirect = photons.is_indirect
+        self.queries = 0
+
+    def harmonic_mean_distance(self, p_k: np.ndarray, n_k: np.ndarray, count: int, R_max: float) -> float:
+        """R_k from the last hits of the ``count`` nearest indirect photons (Figure 3); R_max if none fit."""
+        if self.indirect_tree is None:
+            return R_max
+        k = min(count, len(self.indirect_index))
+        _, local = self.indirect_tree.query(p_k, k=k)
+        self.queries += 1
+        idx = self.indirect_index[np.atleast_1d(local)]
+        idx = idx[idx < len(self.p)]
+        to_hit = self.last_hit[idx] - p_k
+        # Keep photons on the record's side whose last hit lies above its tangent plane.
+        ok = (self.n[idx] @ n_k > 0.5) & (to_hit @ n_k > 0)
+        if not ok.any():
+            return R_max
+        d = np.linalg.norm(to_hit[ok], axis=1)
+        d = np.maximum(d, 1e-12 * R_max)
+        return float(ok.sum() / np.sum(1.0 / d))
+
+    def zone(self, p_k: np.ndarray, n_k: np.ndarray, R_k: float, a: float) -> tuple[np.ndarray, np.ndarray]:
+        """Photons within a R_k passing Equation 2, and their Ward weights."""
+        idx = np.asarray(self.tree.query_ball_point(p_k, a * R_k), dtype=np.int64)
+        self.queries += 1
+        if len(idx) == 0:
+            return idx, np.zeros(0)
+        m = len(idx)
+        w = ward_weight(self.p[idx], self.n[idx], np.broadcast_to(p_k, (m, 3)), np.broadcast_to(n_k, (m, 3)),
+                        np.full(m, R_k))
+        ok = accepted(w, a, self.p[idx], self.n[idx], np.broadcast_to(p_k, (m, 3)),
+                      np.broadcast_to(n_k, (m, 3)), np.full(m, R_k))
+        return idx[ok], w[ok]
+
+    def epanechnikov_irradiance(self, p_k: np.ndarray, zone: np.ndarray, radius: float) -> tuple[np.ndarray, int]:
+        """E_k: 2D Epanechnikov density estimate over the zone's indirect photons (bandwidth = radius).
+
+        K(d) = 2 / (pi r^2) * (1 - d^2 / r^2), which integrates to 1 over the disc of radius r.
+        """
+        ind = zone[self.is_indirect[zone]]
+        if len(ind) == 0:
+            return np.zeros(3), 0
+        d2 = np.sum((self.p[ind] - p_k) ** 2, axis=1)
+        kernel = 2.0 / (np.pi * radius * radius) * np.maximum(1.0 - d2 / (radius * radius), 0.0)
+        return kernel @ self.power[ind], len(ind)
+
+
+def generate_irradiance_cache(density: PhotonDensity, params: CacheParameters, seed: int,
+                              progress=None) -> tuple[IrradianceCache, Zones, CacheBuildStats]:
+    """Algorithm 1 over the photons themselves; fills the photons' w_sum and E_indirect_sum."""
+    photons = density.photons
+    w_sum = np.zeros(len(photons), np.float64)
+    E_sum = np.zeros((len(photons), 3), np.float64)
+    cache, zones, stats = place_records(
+        density, density.p, density.n, w_sum, E_sum, params, np.random.default_rng([seed, 2]),
+        candidate_is_photon=True, progress=progress)
+    photons.w_sum[:] = w_sum
+    photons.E_indirect_sum[:] = E_sum
+    return cache, zones, stats
+
+
+def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray, w_sum: np.ndarray,
+                  E_sum: np.ndarray, params: CacheParameters, rng: np.random.Generator,
+                  candidate_is_photon: bool, progress=None, existing: IrradianceCache | None = None
+                  ) -> tuple[IrradianceCache, Zones, CacheBuildStats]:
+    """The record-placement loop of Algorithm 1 over a generic candidate set.
+
+    cand_p, cand_n : (c, 3) float64 candidate positions and normals.
+    w_sum, E_sum : (c,) and (c, 3) float64 running sums, updated in place.
+    candidate_is_photon : candidates are the photons themselves (pass 2), so a
+        zone's photons are the candidates to update; otherwise (holes) the
+        candidates within the zone are found by their own kd-tree.
+    existing : records already placed (neighbour clamping also looks at them).
+    """
+    a = params.a
+    threshold = 1.0 / a
+    stats = CacheBuildStats()
+    rec_p, rec_n, rec_E, rec_R, rec_used = [], [], [], [], []
+    zone_start, zone_photons = [0], []
+    clamp = _NeighbourClamp(existing)
+    cand_tree = None if candidate_is_photon else cKDTree(cand_p)
+    order = rng.permutation(len(cand_p))
+    for b0 in range(0, len(order), _BLOCK):
+        block = order[b0:b0 + _BLOCK]
+        for c in block[w_sum[block] < threshold]:
+            stats.candidates_visited += 1
+            if w_sum[c] >= threshold:  # covered by a record created earlier in this block
+                continue
+            p_k, n_k = cand_p[c], cand_n[c]
+            R_k = density.harmonic_mean_distance(p_k, n_k, params.r_nearest, params.R_max)
+            R_k = min(max(R_k, params.R_min), params.R_max)
+            R_k = clamp.clamp(p_k, R_k)
+            zone, w = density.zone(p_k, n_k, R_k, a)
+            E_k, used = density.epanechnikov_irradiance(p_k, zone, a * R_k)
+            if candidate_is_photon:
+                members, w_members = zone, w
+            else:
+                members = np.asarray(cand_tree.query_ball_point(p_k, a * R_k), dtype=np.int64)
+                stats.kd_queries += 1
+                m = len(members)
+                w_members = ward_weight(cand_p[members], cand_n[members], np.broadcast_to(p_k, (m, 3)),
+                                        np.broadcast_to(n_k, (m, 3)), np.full(m, R_k))
+                ok = accepted(w_members, a, cand_p[members], cand_n[members], np.broadcast_to(p_k, (m, 3)),
+                              np.broadcast_to(n_k, (m, 3)), np.full(m, R_k))
+                members, w_members = members[ok], w_members[ok]
+            w_sum[members] += w_members
+            E_sum[members] += w_members[:, None] * E_k
+            # The candidate is covered by its own record even if Equation 2 rounding dropped it.
+            if w_sum[c] < threshold:
+                E_sum[c] += (threshold - w_sum[c]) * E_k
+                w_sum[c] = threshold
+            rec_p.append(p_k)
+            rec_n.append(n_k)
+            rec_E.append(E_k)
+            rec_R.append(R_k)
+            rec_used.append(used)
+            zone_photons.append(zone.astype(np.int32))
+            zone_start.append(zone_start[-1] + len(zone))
+            clamp.add(p_k, R_k)
+        if progress is not None:
+            progress.update(min(1.0, (b0 + len(block)) / max(len(order), 1)))
+    K = len(rec_p)
+    stats.records = K
+    stats.kd_queries += density.queries
+    cache = IrradianceCache(
+        p=np.array(rec_p, np.float64).reshape(K, 3), n=np.array(rec_n, np.float64).reshape(K, 3),
+        E=np.array(rec_E, np.float64).reshape(K, 3), R=np.array(rec_R, np.float64),
+        grad_r=np.zeros((K, 3, 3)), grad_t=np.zeros((K, 3, 3)),
+        photons_used=np.array(rec_used, np.int32), hole=np.full(K, not candidate_is_photon),
+        refined=np.zeros(K, bool))
+    zones = Zones(np.array(zone_start, np.int64),
+                  np.concatenate(zone_photons) if zone_photons else np.zeros(0, np.int32))
+    return cache, zones, stats
+
+
+def neighbour_clamp(p: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """One min-plus pass: R_k <- min_j (R_j + |p_k - p_j|) over neighbours within R_k ([KBPZ06]).
+
+    The result satisfies R_k <= R_j + |p_k - p_j| for every pair, so a single pass is final.
+    """
+    if len(p) < 2:
+        return R.copy()
+    tree = cKDTree(p)
+    out = R.copy()
+    pairs = tree.query_pairs(float(R.max()), output_type="ndarray")
+    if len(pairs) == 0:
+        return out
+    i, j = pairs[:, 0], pairs[:, 1]
+    d = np.linalg.norm(p[i] - p[j], axis=1)
+    np.minimum.at(out, i, R[j] + d)
+    np.minimum.at(out, j, R[i] + d)
+    return out
+
+
+class _NeighbourClamp:
+    """R_k <= R_j + |p_k - p_j| against records placed so far (kd-tree + recent list)."""
+
+    def __init__(self, existing: IrradianceCache | None):
+        self.tree_p = existing.p.copy() if existing is not None and len(existing) else np.zeros((0, 3))
+        self.tree_R = existing.R.copy() if existing is not None and len(existing) else np.zeros(0)
+        self.tree = cKDTree(self.tree_p) if len(self.tree_p) else None
+        self.recent_p, self.recent_R = [], []
+
+    def clamp(self, p_k: np.ndarray, R_k: float) -> float:
+        if self.tree is not None:
+            idx = self.tree.query_ball_point(p_k, R_k)
+            if idx:
+                d = np.linalg.norm(self.tree_p[idx] - p_k, axis=1)
+                R_k = min(R_k, float(np.min(self.tree_R[idx] + d)))
+        if self.recent_p:
+            d = np.linalg.norm(np.asarray(self.recent_p) - p_k, axis=1)
+            R_k = min(R_k, float(np.min(np.asarray(self.recent_R) + d)))
+        return R_k
+
+    def add(self, p_k: np.ndarray, R_k: float):
+        self.recent_p.append(p_k)
+        self.recent_R.append(R_k)
+        if len(self.recent_p) >= _REBUILD_EVERY:
+            self.tree_p = np.concatenate([self.tree_p, np.asarray(self.recent_p)])
+            self.tree_R = np.concatenate([self.tree_R, np.asarray(self.recent_R)])
+            self.tree = cKDTree(self.tree_p)
+            self.recent_p, self.recent_R = [], []

@@ -1,0 +1,157 @@
+"""The bake manifest: ``pdic_manifest.json``, written next to the light-map images.
+
+Pure json, bpy-free. A game engine, a script or a test reads the manifest to
+find each object's light map, the UV map it is laid out in, how it was baked
+and how long that took. Keys are written in a fixed order (top level and per
+object as listed below; ``settings`` and ``stats`` sorted recursively), so two
+bakes of the same scene give diffable files.
+
+Schema (``schema_version`` 1)
+-----------------------------
+``schema_version`` : int
+    1. Bumped when a key changes meaning or disappears (adding keys does not bump it).
+``generator`` : str
+    ``"pdic <version>"``.
+``units`` : str
+    What a texel holds: ``"irradiance/pi"`` - irradiance E divided by pi, in
+    Blender's light units (W/m^2/sr, i.e. the radiance a white diffuse surface
+    reflects; Cycles' Diffuse bake, Direct+Indirect, no Color). Multiply by the
+    albedo to get outgoing radiance.
+``objects`` : list of dict, one per baked object, in bake order:
+    ``name`` : str, the Blender object name.
+    ``image`` : str, path of the light-map image relative to the manifest's
+        folder (POSIX separators), e.g. ``"PDIC_Cube.exr"``; ``""`` if the image
+        was packed into the .blend instead.
+    ``image_name`` : str, the Blender image datablock (``"PDIC_<object>"``).
+    ``uv_map`` : str, the mesh UV map the light map is laid out in (``"PDIC_Lightmap"``).
+    ``width``, ``height`` : int, resolution in texels.
+    ``format`` : str, ``"OPEN_EXR"``; ``color_depth`` : str, ``"16"`` (half) or ``"32"`` (float).
+    ``color_space`` : str, ``"Non-Color"`` (linear values, no transform).
+    ``channels`` : str, ``"RGBA"``: linear RGB irradiance/pi, A = texel coverage in [0, 1].
+    further keys (sorted) as the caller supplies them, e.g. ``texels`` (int,
+    covered texels), ``charts`` (int), ``utilization`` (float, 0..1 of the square).
+``settings`` : dict
+    The :class:`core.settings.BakeSettings` fields (see that module for units),
+    keys sorted.
+``stats`` : dict
+    :meth:`core.stats.BakeStats.as_dict` plus the add-on's own stages:
+    ``seconds`` (dict stage -> wall seconds, float), ``seconds_total`` (float, s),
+    ``counters`` (dict name -> int or float: photons, records, rays cast/saved,
+    texels, ...). Keys sorted.
+``warnings`` : list of str
+    Everything the bake reported but did not stop for (skipped objects, clamped
+    values, degenerate triangles).
+
+Every number is finite: :func:`write_manifest` raises ``ValueError`` naming the
+key if it meets NaN or infinity, so a reader never has to guard against them.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+
+SCHEMA_VERSION = 1
+FILENAME = "pdic_manifest.json"
+UNITS = "irradiance/pi"
+OBJECT_KEYS = ("name", "image", "image_name", "uv_map", "width", "height",
+               "format", "color_depth", "color_space", "channels")
+REQUIRED_OBJECT_KEYS = ("name", "image", "uv_map", "width", "height")
+
+
+def _plain(value, where: str):
+    """``value`` as plain json types (numpy scalars/arrays converted), rejecting non-finite numbers."""
+    if isinstance(value, bool) or value is None or isinstance(value, str):
+        return value
+    if isinstance(value, dict):
+        return {str(k): _plain(v, f"{where}.{k}") for k, v in sorted(value.items(), key=lambda kv: str(kv[0]))}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v, f"{where}[{i}]") for i, v in enumerate(value)]
+    if hasattr(value, "tolist"):  # numpy scalar or array
+        return _plain(value.tolist(), where)
+    if isinstance(value, int):
+        return int(value)
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise ValueError(f"manifest: {where} is {value!r}; every number must be finite")
+        return float(value)
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    raise ValueError(f"manifest: {where} has type {type(value).__name__}, which JSON cannot hold")
+
+
+def build_manifest(objects: list, stats: dict, settings: dict, warnings: list, generator: str = "") -> dict:
+    """The manifest as an ordered dict (see the module docstring); validates every value."""
+    entries = []
+    for i, obj in enumerate(objects):
+        missing = [k for k in REQUIRED_OBJECT_KEYS if k not in obj]
+        if missing:
+            raise ValueError(f"manifest: object {obj.get('name', i)!r} lacks {', '.join(missing)}")
+        for key in ("width", "height"):
+            if not isinstance(obj[key], int) and not (hasattr(obj[key], "dtype") and obj[key].dtype.kind in "iu"):
+                raise ValueError(f"manifest: objects[{i}].{key} must be an integer, got {obj[key]!r}")
+        ordered = {k: _plain(obj[k], f"objects[{i}].{k}") for k in OBJECT_KEYS if k in obj}
+        for k in sorted(set(obj) - set(OBJECT_KEYS), key=str):
+            ordered[str(k)] = _plain(obj[k], f"objects[{i}].{k}")
+        entries.append(ordered)
+    if not generator:
+        from . import __version__
+        generator = f"pdic {__version__}"
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "generator": generator,
+        "units": UNITS,
+        "objects": entries,
+        "settings": _plain(dict(settings), "settings"),
+        "stats": _plain(dict(stats), "stats"),
+        "warnings": [str(w) for w in warnings],
+    }
+
+
+def write_manifest(path, objects: list, stats: dict, settings: dict, warnings: list) -> Path:
+    """Write ``pdic_manifest.json`` and return its path.
+
+    Parameters
+    ----------
+    path : the output folder (the file is ``<path>/pdic_manifest.json``) or a path
+        ending in ``.json``.
+    objects : one dict per baked object with at least ``name``, ``image``
+        (path relative to the manifest's folder), ``uv_map``, ``width``, ``height``.
+    stats, settings : JSON-serialisable dicts (numpy scalars are converted).
+    warnings : messages.
+
+    Raises
+    ------
+    ValueError : a NaN/inf number, a missing object key or a non-JSON value (named).
+    OSError : the file cannot be written (nothing is left behind).
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".json":
+        path = path / FILENAME
+    document = build_manifest(objects, stats, settings, warnings)
+    text = json.dumps(document, indent=2, allow_nan=False) + "\n"
+    fd, tmp = tempfile.mkstemp(prefix=".pdic_manifest-", suffix=".json", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def read_manifest(path) -> dict:
+    """Read a manifest (folder or file path), checking ``schema_version``."""
+    path = Path(path)
+    if path.suffix.lower() != ".json":
+        path = path / FILENAME
+    with open(path, encoding="utf-8") as f:
+        document = json.load(f)
+    version = document.get("schema_version")
+    if version != SCHEMA_VERSION:
+        raise ValueError(f"{path}: schema_version {version!r}, this reader understands {SCHEMA_VERSION}")
+    return document

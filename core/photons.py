@@ -1,0 +1,226 @@
+"""Pass 1: the photon map (paper section 3.1, standard photon mapping [Jen96]).
+
+Photons leave every light in proportion to its power, bounce diffusely with
+Russian roulette on the textured albedo, and every diffuse hit is stored with
+what passes 2 and 3 need: incident direction and distance to the previous hit
+(to estimate R_k and re-project virtual rays), a link to the previous photon
+of its path (whose irradiance gives a virtual ray its radiance), and the
+section 3.1 fields w_sum, cumulative indirect irradiance and direct irradiance.
+
+Tracing is a pure function over batches of emitted photons
+(:func:`trace_photon_batch`), mapped on the executor; batches are stitched
+together by offsetting their path links.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from . import emission
+from .albedo import albedo as albedo_at
+from .executor import Executor, Progress, serial_executor
+from .rays import RayCaster
+from .sampling import cosine_hemisphere, orthonormal_basis
+from .scene import Scene
+
+BATCH_PHOTONS = 65_536
+"""Photons emitted per batch: large enough to keep Embree busy, small enough to cancel within ~0.1 s."""
+
+
+@dataclass
+class PhotonMap:
+    """Stored photons, struct of arrays (N photons). See :attr:`BYTES_PER_PHOTON`.
+
+    p : (N, 3) float32 scene-local hit position.
+    n : (N, 3) float32 unit geometric normal on the side the photon arrived from.
+    wi : (N, 3) float32 unit direction from the hit back toward the previous hit (or the light).
+    power : (N, 3) float32 watts carried *into* this hit.
+    d_prev : (N,) float32 distance to the previous hit (to the emission point for bounce 0).
+    prev : (N,) int32 index of the previous photon on the path; -1 for a first hit.
+    bounce : (N,) uint8 diffuse reflections before this hit: 0 = direct photon.
+    triangle : (N,) int32 triangle hit.
+    albedo : (N, 3) float32 linear albedo at the hit.
+    w_sum : (N,) float32 cumulative Ward weight of the records around the photon (section 3.1).
+    E_indirect_sum : (N, 3) float32 cumulative sum of w_k * E_k of those records.
+    E_direct : (N, 3) float32 direct irradiance at the photon from shadow rays.
+    emitted : photons emitted (the budget actually used).
+    """
+
+    p: np.ndarray
+    n: np.ndarray
+    wi: np.ndarray
+    power: np.ndarray
+    d_prev: np.ndarray
+    prev: np.ndarray
+    bounce: np.ndarray
+    triangle: np.ndarray
+    albedo: np.ndarray
+    w_sum: np.ndarray
+    E_indirect_sum: np.ndarray
+    E_direct: np.ndarray
+    emitted: int = 0
+
+    BYTES_PER_PHOTON = 12 * 4 + 4 + 4 + 1 + 4 + 12 + 4 + 12 + 12  # = 101
+
+    def __len__(self) -> int:
+        return len(self.p)
+
+    @property
+    def nbytes(self) -> int:
+        return sum(getattr(self, f.name).nbytes for f in fields(self) if isinstance(getattr(self, f.name), np.ndarray))
+
+    @property
+    def is_indirect(self) -> np.ndarray:
+        """(N,) bool: photons that bounced at least once (the ones E_k estimates use)."""
+        return self.bounce > 0
+
+    @property
+    def last_hit(self) -> np.ndarray:
+        """(N, 3) float64 the previous hit point p_lh = p + wi * d_prev (Figure 3)."""
+        return self.p.astype(np.float64) + self.wi.astype(np.float64) * self.d_prev[:, None].astype(np.float64)
+
+    def E_indirect(self) -> np.ndarray:
+        """(N, 3) float64 interpolated indirect irradiance at each photon from the cache (0 where uncovered)."""
+        w = self.w_sum.astype(np.float64)[:, None]
+        return np.divide(self.E_indirect_sum.astype(np.float64), w, out=np.zeros((len(self), 3)), where=w > 0)
+
+    @staticmethod
+    def empty(emitted: int = 0) -> "PhotonMap":
+        return PhotonMap(*_allocate(0), emitted=emitted)
+
+
+def _allocate(n: int) -> tuple:
+    return (np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32),
+            np.zeros((n, 3), np.float32), np.zeros(n, np.float32), np.full(n, -1, np.int32),
+            np.zeros(n, np.uint8), np.zeros(n, np.int32), np.zeros((n, 3), np.float32),
+            np.zeros(n, np.float32), np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32))
+
+
+@dataclass(frozen=True)
+class PhotonBatchResult:
+    photons: PhotonMap
+    rays: int
+    escaped: int
+
+
+def trace_photon_batch(scene: Scene, caster: RayCaster, origins: np.ndarray, directions: np.ndarray,
+                       power: np.ndarray, max_bounces: int, rng: np.random.Generator) -> PhotonBatchResult:
+    """Trace one batch of emitted photons through up to ``max_bounces`` diffuse reflections.
+
+    origins, directions : (m, 3) float64 emitted rays (free-space origins).
+    power : (m, 3) float64 watts per photon.
+    Returns the stored hits with ``prev`` local to this batch.
+    """
+    geometry_n = scene.geometry.face_normals()
+    waves = []
+    stored = 0
+    rays = 0
+    escaped = 0
+    o, d, phi = origins, directions, power
+    prev = np.full(len(o), -1, np.int64)
+    surface_n = None  # origins of the first wave lie on lights, not surfaces
+    for bounce in range(max_bounces + 1):
+        if len(o) == 0:
+            break
+        hits = caster.intersect(o, d, normals=surface_n)
+        rays += len(o)
+        hit = hits.hit
+        escaped += int((~hit).sum())  # photons leaving an open scene stop here
+        o, d, phi, prev = o[hit], d[hit], phi[hit], prev[hit]
+        t, tri, bary = hits.t[hit], hits.triangle[hit], hits.barycentric[hit]
+        m = len(tri)
+        if m == 0:
+            break
+        p = o + d * t[:, None]
+        n = geometry_n[tri]
+        # Surfaces are two-sided for light transport: store the normal of the side hit.
+        flip = np.einsum("ij,ij->i", n, d) > 0
+        n[flip] *= -1.0
+        rho = albedo_at(scene, tri, bary).astype(np.float64)
+        index = stored + np.arange(m)
+        waves.append((p, n, -d, phi, t, prev, np.full(m, bounce), tri, rho))
+        stored += m
+        if bounce == max_bounces:
+            break
+        # Russian roulette on the albedo: survive with q = max channel, carry power * rho / q.
+        q = rho.max(axis=1)
+        survive = rng.random(m) < q
+        o = p[survive]
+        phi = phi[survive] * rho[survive] / q[survive, None]
+        prev = index[survive]
+        surface_n = n[survive]
+        local = cosine_hemisphere(rng.random((len(o), 2)))[0]
+        t1, t2 = orthonormal_basis(surface_n)
+        d = local[:, :1] * t1 + local[:, 1:2] * t2 + local[:, 2:3] * surface_n
+    photons = _assemble(waves, stored)
+    return PhotonBatchResult(photons, rays, escaped)
+
+
+def _assemble(waves: list, count: int) -> PhotonMap:
+    pm = PhotonMap(*_allocate(count))
+    start = 0
+    for p, n, wi, phi, t, prev, bounce, tri, rho in waves:
+        s = slice(start, start + len(p))
+        pm.p[s], pm.n[s], pm.wi[s], pm.power[s] = p, n, wi, phi
+        pm.d_prev[s], pm.prev[s], pm.bounce[s], pm.triangle[s], pm.albedo[s] = t, prev, bounce, tri, rho
+        start = s.stop
+    return pm
+
+
+def concatenate(batches: list[PhotonMap], emitted: int) -> PhotonMap:
+    """Stitch batches into one map, offsetting each batch's path links."""
+    total = sum(len(b) for b in batches)
+    out = PhotonMap(*_allocate(total), emitted=emitted)
+    start = 0
+    for b in batches:
+        s = slice(start, start + len(b))
+        for f in fields(PhotonMap):
+            value = getattr(b, f.name)
+            if isinstance(value, np.ndarray):
+                getattr(out, f.name)[s] = value
+        out.prev[s] = np.where(b.prev >= 0, b.prev + start, -1)
+        start = s.stop
+    return out
+
+
+@dataclass(frozen=True)
+class PhotonTraceStats:
+    emitted: int
+    stored: int
+    rays: int
+    escaped: int
+    emitted_per_light: dict
+
+
+def trace_photons(scene: Scene, caster: RayCaster, photons: int, max_bounces: int, seed: int,
+                  executor: Executor | None = None, progress: Progress | None = None
+                  ) -> tuple[PhotonMap, PhotonTraceStats]:
+    """Pass 1: emit ``photons`` from all lights in proportion to their power and trace them.
+
+    Returns the photon map (section 3.1 fields zeroed) and counters.
+    """
+    executor = executor or serial_executor()
+    plan = emission.plan(scene, photons)
+    if plan.total == 0:
+        return PhotonMap.empty(), PhotonTraceStats(0, 0, 0, 0, {})
+    batches = plan.batches(BATCH_PHOTONS)
+    serial = caster.serial()
+    done = [0]
+
+    def run(job):
+        index, batch = job
+        rng = np.random.default_rng([seed, 1, index])
+        o, d, phi = emission.emit(scene, batch, rng)
+        result = trace_photon_batch(scene, serial, o, d, phi, max_bounces, rng)
+        done[0] += 1
+        if progress is not None:
+            progress.update(done[0] / len(batches))
+        return result
+
+    results = executor.map(run, list(enumerate(batches)))
+    caster.rays_cast += sum(r.rays for r in results)
+    photon_map = concatenate([r.photons for r in results], plan.total)
+    stats = PhotonTraceStats(plan.total, len(photon_map), sum(r.rays for r in results),
+                             sum(r.escaped for r in results), plan.per_light())
+    return photon_map, stats

@@ -1,0 +1,151 @@
+"""Blender lights and world -> :mod:`core.scene` lights and :class:`core.scene.World`.
+
+Unit conversions (DEVELOPERS.md, "Units"); all in world coordinates here, the
+caller recentres positions with the scene's origin:
+
+=========  ======================================================================
+point      power = energy * 2**exposure * colour (W); radius = shadow_soft_size
+spot       as point; direction = -Z of matrix_world; half_angle = spot_size / 2;
+           blend = spot_blend
+sun        irradiance = strength * 2**exposure * colour (W/m^2); direction =
+           +Z of matrix_world (towards the sun); half_angle = angle / 2
+area       size (and size_y for RECTANGLE/ELLIPSE) times the object's scale
+           along its X and Y axes; normal = -Z (it emits down its -Z axis);
+           radiance = power / (pi * area) (W/m^2/sr), one-sided
+world      Background node into the World Output: radiance = Color * Strength
+=========  ======================================================================
+
+``colour`` includes the blackbody ``temperature_color`` when ``use_temperature``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from ..core.scene import AreaLight, PointLight, SceneError, SpotLight, SunLight, World
+from .extract_materials import USE_NODES_FLAG, _linked_node, _output_node
+
+
+def _unit(v: np.ndarray, what: str) -> np.ndarray:
+    n = float(np.linalg.norm(v))
+    if not (n > 0 and math.isfinite(n)):
+        raise SceneError(f"{what}: degenerate transform (zero or non-finite axis)")
+    return v / n
+
+
+def light_power(light) -> np.ndarray:
+    """(3,) float64 Blender power (W) or sun strength (W/m^2): energy * 2**exposure * colour.
+
+    Parameters
+    ----------
+    light : bpy.types.Light (evaluated or original).
+    """
+    color = np.array(light.color[:3], np.float64)
+    if getattr(light, "use_temperature", False):
+        color = color * np.array(light.temperature_color[:3], np.float64)
+    return float(light.energy) * 2.0 ** float(getattr(light, "exposure", 0.0)) * color
+
+
+def extract_light(light, matrix_world: np.ndarray, name: str, warnings: list):
+    """One Blender light as a core light, in world coordinates.
+
+    Parameters
+    ----------
+    light : bpy.types.Light, the light object's data.
+    matrix_world : (4, 4) float64 object-to-world transform (of the instance, for instanced lights).
+    name : name for messages (object name, ``instancer/object`` for instances).
+    warnings : list the messages about approximations are appended to.
+
+    Returns
+    -------
+    PointLight | SpotLight | SunLight | AreaLight, or None for an unsupported type.
+    """
+    M = np.asarray(matrix_world, np.float64)
+    position = M[:3, 3].copy()
+    power = light_power(light)
+    if np.any(power < 0):
+        warnings.append(f"light {name!r}: negative power/strength clamped to 0")
+        power = np.maximum(power, 0.0)
+    if light.type == "POINT":
+        return PointLight(name=name, position=position, power=power, radius=float(light.shadow_soft_size))
+    if light.type == "SPOT":
+        return SpotLight(
+            name=name,
+            position=position,
+            direction=_unit(-M[:3, 2], f"light {name!r}"),
+            power=power,
+            half_angle=0.5 * float(light.spot_size),
+            blend=float(light.spot_blend),
+            radius=float(light.shadow_soft_size),
+        )
+    if light.type == "SUN":
+        return SunLight(
+            name=name,
+            direction=_unit(M[:3, 2], f"light {name!r}"),
+            irradiance=power,
+            half_angle=0.5 * float(light.angle),
+        )
+    if light.type == "AREA":
+        scale_u = float(np.linalg.norm(M[:3, 0]))
+        scale_v = float(np.linalg.norm(M[:3, 1]))
+        size_u = float(light.size) * scale_u
+        size_v = float(light.size_y if light.shape in ("RECTANGLE", "ELLIPSE") else light.size) * scale_v
+        if getattr(light, "spread", math.pi) < math.pi - 1e-6:
+            warnings.append(f"light {name!r}: area light spread below 180 degrees is ignored (emits as a full Lambertian)")
+        area = AreaLight(
+            name=name,
+            position=position,
+            normal=_unit(-M[:3, 2], f"light {name!r}"),
+            axis_u=_unit(M[:3, 0], f"light {name!r}"),
+            axis_v=_unit(M[:3, 1], f"light {name!r}"),
+            size_u=size_u,
+            size_v=size_v,
+            shape=light.shape,
+            radiance=np.zeros(3),
+        )
+        if area.area <= 0:
+            warnings.append(f"light {name!r}: area light of zero size ignored")
+            return None
+        # Light.normalize (default True): power is spread over the area, L = P / (pi A).
+        # TODO(normalize): with normalize=False Cycles does not divide by the area; we
+        # take L = P / pi (area treated as 1 m^2) until the Cycles measurement confirms it.
+        divisor = area.area if getattr(light, "normalize", True) else 1.0
+        if not getattr(light, "normalize", True):
+            warnings.append(f"light {name!r}: 'Normalize' is off; radiance taken as power / pi (provisional)")
+        return replace(area, radiance=power / (math.pi * divisor))
+    warnings.append(f"light {name!r}: unsupported light type {light.type!r} ignored")
+    return None
+
+
+def extract_world(world, warnings: list) -> World:
+    """The uniform world radiance (3,) W/m^2/sr of ``world`` (a bpy World or None -> black).
+
+    A Background (or Emission) node linked to the Cycles World Output gives
+    Color x Strength; anything linked into Color (an environment or sky texture)
+    is replaced by the socket's constant colour with a warning naming the world.
+    """
+    if world is None:
+        return World(radiance=np.zeros(3, np.float32))
+    tree = world.node_tree
+    if tree is None or (USE_NODES_FLAG and not world.use_nodes):
+        return World(radiance=np.array(world.color[:3], np.float32))
+    out = _output_node(tree, "OUTPUT_WORLD")
+    fed = None if out is None else _linked_node(out.inputs["Surface"])
+    if fed is None:
+        return World(radiance=np.zeros(3, np.float32))
+    node = fed[0]
+    if node.type not in ("BACKGROUND", "EMISSION"):
+        warnings.append(f"world {world.name!r}: unsupported node {node.name!r} ({node.bl_idname}) on the World Output; world is black")
+        return World(radiance=np.zeros(3, np.float32))
+    color_socket, strength_socket = node.inputs["Color"], node.inputs["Strength"]
+    for socket in (color_socket, strength_socket):
+        fed_socket = _linked_node(socket)
+        if fed_socket is not None:
+            warnings.append(
+                f"world {world.name!r}: {socket.name} is driven by node {fed_socket[0].name!r} ({fed_socket[0].bl_idname}) "
+                "(not supported); using the socket's constant value"
+            )
+    radiance = np.array(color_socket.default_value[:3], np.float64) * float(strength_socket.default_value)
+    return World(radiance=np.maximum(radiance, 0.0).astype(np.float32))

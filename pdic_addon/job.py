@@ -1,0 +1,343 @@
+"""A bake as a job in three steps, so the UI never blocks and a failure leaves no trace.
+
+1. :meth:`BakeJob.prepare` (main thread, bpy): validate, choose objects and
+   resolutions, unwrap each target mesh into the UV map ``PDIC_Lightmap``,
+   evaluate the depsgraph and extract the core scene.
+2. :meth:`BakeJob.compute` (any thread, pure core): ``core.pipeline.bake``.
+3. :meth:`BakeJob.finish` (main thread, bpy): write images, the manifest and
+   the material copies.
+
+Every change to the file or the output folder is recorded in a
+:class:`Transaction`; :meth:`BakeJob.rollback` undoes them in reverse order,
+so an error or a cancel at any point leaves the .blend as it was.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+from ..core import manifest as core_manifest
+from ..core import unwrap
+from ..core.executor import Progress
+from ..core.scene import SceneError
+from ..core.settings import BakeSettings
+from . import uvmaps, writeback
+from .extract import extract_scene
+
+
+class BakeError(Exception):
+    """A bake cannot run or finish; the message is for the user and names the culprit."""
+
+
+# --------------------------------------------------------------------------- transaction
+class Transaction:
+    """Undo log: each change registers how to undo it (and optionally what to do on commit)."""
+
+    def __init__(self):
+        self._entries: list = []
+
+    def add(self, undo, label: str, commit=None) -> None:
+        self._entries.append((undo, label, commit))
+
+    def __len__(self):
+        return len(self._entries)
+
+    def rollback(self) -> list[str]:
+        """Undo every change, newest first; returns messages of undo steps that failed."""
+        errors = []
+        while self._entries:
+            undo, label, _ = self._entries.pop()
+            try:
+                undo()
+            except Exception as e:  # keep undoing the rest
+                errors.append(f"{label}: {e}")
+        return errors
+
+    def commit(self) -> None:
+        """Keep every change; run the commit hooks (e.g. delete file backups)."""
+        entries, self._entries = self._entries, []
+        for _, _, commit in entries:
+            if commit is not None:
+                try:
+                    commit()
+                except OSError:
+                    pass
+
+
+# --------------------------------------------------------------------------- helpers
+def default_cache_dir() -> Path:
+    """Where unwraps are cached: the extension's user folder, else the temp folder."""
+    package = __package__.rpartition(".")[0]
+    try:
+        return Path(bpy.utils.extension_path_user(package, path="unwrap_cache", create=True))
+    except (ValueError, RuntimeError, AttributeError):
+        return Path(tempfile.gettempdir()) / "pdic_unwrap_cache"
+
+
+def _object_settings(obj):
+    return getattr(obj, "pdic", None)
+
+
+def choose_objects(view_layer, candidates) -> tuple[list, list[str], list[str]]:
+    """Split ``candidates`` into (bakeable objects, warnings, reasons for skipping)."""
+    chosen, warnings, reasons = [], [], []
+    for obj in candidates:
+        settings = _object_settings(obj)
+        if obj.type != "MESH":
+            reasons.append(f"{obj.name!r} is not a mesh ({obj.type})")
+        elif settings is not None and not settings.bake:
+            reasons.append(f"{obj.name!r} has Bake Light Map off")
+        elif obj.hide_render:
+            reasons.append(f"{obj.name!r} is hidden from render")
+        elif obj.library is not None or obj.data.library is not None:
+            lib = (obj.library or obj.data.library).filepath
+            msg = f"{obj.name!r} is linked from library {lib!r}: its mesh cannot take a light-map UV map; skipped"
+            warnings.append(msg)
+            reasons.append(msg)
+        elif len(obj.data.polygons) == 0:
+            reasons.append(f"{obj.name!r} has no faces")
+        else:
+            chosen.append(obj)
+    return chosen, warnings, reasons
+
+
+@dataclass
+class BakeReport:
+    """What a finished bake produced (also what the manifest says)."""
+
+    objects: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+    stats: dict = field(default_factory=dict)
+    output: writeback.OutputPlan | None = None
+    manifest_path: Path | None = None
+
+
+# --------------------------------------------------------------------------- the job
+class BakeJob:
+    """One bake of a scene's objects.
+
+    Parameters
+    ----------
+    context : bpy.types.Context (scene, view layer, depsgraph, selection).
+    settings : the frozen core settings (``properties.to_settings``).
+    objects : objects to bake; None = the selected ones (``selected_only``) or
+        every bakeable mesh in the view layer.
+    output_folder : Blender path; default ``scene.pdic.output_folder`` or ``//pdic_lightmaps/``.
+    image_format : "EXR_HALF" or "EXR_FLOAT"; default from ``scene.pdic``.
+    cache_dir : unwrap cache folder (None: :func:`default_cache_dir`).
+    """
+
+    def __init__(self, context, settings: BakeSettings, objects=None, selected_only: bool = False,
+                 output_folder: str | None = None, image_format: str | None = None, cache_dir=None):
+        self.scene = context.scene
+        self.view_layer = context.view_layer
+        self.context = context
+        self.settings = settings
+        props = getattr(self.scene, "pdic", None)
+        self.output_folder = output_folder or (props.output_folder if props else "//pdic_lightmaps/")
+        self.image_format = image_format or (props.image_format if props else "EXR_HALF")
+        self.explicit_objects = list(objects) if objects is not None else None
+        self.selected_only = selected_only
+        self.cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+        self.txn = Transaction()
+        self.warnings: list[str] = []
+        self.timings: dict[str, float] = {}
+        self.unwraps: dict[str, dict] = {}
+        self.objects: list = []
+        self.resolutions: dict[str, tuple[int, int]] = {}
+        self.plan: writeback.OutputPlan | None = None
+        self.extraction = None
+        self.result = None
+        self.report: BakeReport | None = None
+
+    # ----------------------------------------------------------------- 1. prepare
+    def prepare(self) -> None:
+        """Main thread. Raises BakeError (file unchanged) if the bake cannot start."""
+        try:
+            self._prepare()
+        except BaseException as e:
+            self.rollback()
+            if isinstance(e, (SceneError, uvmaps.UVMapError, writeback.WritebackError, ValueError)):
+                raise BakeError(str(e)) from e
+            raise
+
+    def _prepare(self):
+        start = time.perf_counter()
+        if self.explicit_objects is not None:
+            candidates = self.explicit_objects
+        elif self.selected_only:
+            candidates = [o for o in self.view_layer.objects if o.select_get(view_layer=self.view_layer)]
+            if not candidates:
+                raise BakeError("nothing to bake: no objects are selected (select meshes or bake all)")
+        else:
+            candidates = list(self.view_layer.objects)
+            if not candidates:
+                raise BakeError("nothing to bake: the view layer has no objects")
+        objects, warnings, reasons = choose_objects(self.view_layer, candidates)
+        self.warnings += warnings
+        if not objects:
+            raise BakeError("nothing to bake: " + "; ".join(reasons[:5]) + (" ..." if len(reasons) > 5 else ""))
+        editing = [o.name for o in objects if o.mode == "EDIT" or o.data.is_editmode]
+        if editing:
+            raise BakeError(f"leave Edit Mode before baking (editing {', '.join(map(repr, editing))})")
+        self.objects = objects
+        # Output folder: validated before anything changes.
+        self.plan = writeback.plan_output(self.output_folder)
+        if self.plan.pack:
+            self.warnings.append(self.plan.message)
+
+        # -- resolutions: per-object override, else from the world surface area
+        s = self.settings
+        by_mesh: dict = {}
+        for obj in objects:
+            by_mesh.setdefault(obj.data, []).append(obj)
+        triangles = {}
+        for mesh, users in by_mesh.items():
+            tris = uvmaps.mesh_triangles(mesh)
+            triangles[mesh] = tris
+            for obj in users:
+                override = getattr(_object_settings(obj), "resolution", 0)
+                if override > 0:
+                    res = int(override)
+                else:
+                    area = tris.surface_area(tuple(obj.matrix_world.to_scale()))
+                    res = unwrap.choose_resolution(area, s.texel_density, s.default_resolution,
+                                                   s.min_resolution, s.max_resolution)
+                self.resolutions[obj.name] = (res, res)
+            sizes = {self.resolutions[o.name][0] for o in users}
+            if len(sizes) > 1:  # one UV layout per mesh: share its resolution
+                res = max(sizes)
+                self.warnings.append(f"mesh {mesh.name!r} is shared by {', '.join(o.name for o in users)}: "
+                                     f"all get {res}x{res} light maps")
+                for o in users:
+                    self.resolutions[o.name] = (res, res)
+        self.timings["choose"] = time.perf_counter() - start
+
+        # -- unwrap each mesh once (positions scaled like its first user in the world)
+        start = time.perf_counter()
+        for mesh, users in by_mesh.items():
+            tris = triangles[mesh]
+            res = self.resolutions[users[0].name][0]
+            scale = np.asarray(tuple(users[0].matrix_world.to_scale()), np.float64)
+            try:
+                result = unwrap.unwrap(tris.positions * scale, tris.triangles, res, s.padding,
+                                       cache_dir=self.cache_dir, triangle_polygon=tris.polygon)
+                uv_loop, conflicts = unwrap.loop_uvs(result.uv, tris.loops, tris.loop_count)
+            except ValueError as e:
+                raise BakeError(f"cannot unwrap mesh {mesh.name!r} (object {users[0].name!r}): {e}") from e
+            if conflicts:
+                self.warnings.append(f"mesh {mesh.name!r}: {conflicts} polygon corners got split UVs")
+            uvmaps.write_lightmap_uv(mesh, uv_loop, self.txn)
+            for o in users:
+                self.unwraps[o.name] = {"charts": result.chart_count, "utilization": round(result.utilization, 4),
+                                        "unwrap_cached": result.from_cache}
+        self.timings["unwrap"] = time.perf_counter() - start
+
+        # -- extract the core scene from the evaluated depsgraph
+        start = time.perf_counter()
+        depsgraph = self.context.evaluated_depsgraph_get()
+        depsgraph.update()
+        self.extraction = extract_scene(depsgraph, objects, uvmaps.LIGHTMAP_UV, self.resolutions)
+        self.warnings += self.extraction.warnings
+        for name, count in self.extraction.degenerate_triangles.items():
+            self.warnings.append(f"{name!r}: {count} degenerate (zero-area) triangles are not baked")
+        if not self.extraction.scene.has_light():
+            raise BakeError("nothing emits light: add a light, an emissive material or a world colour")
+        self.timings["extract"] = time.perf_counter() - start
+
+    @property
+    def texel_count(self) -> int:
+        return int(sum(w * h for w, h in self.resolutions.values()))
+
+    # ----------------------------------------------------------------- 2. compute
+    def compute(self, progress: Progress | None = None) -> None:
+        """Any thread; no bpy. Raises core.executor.Cancelled on cancel, SceneError on bad input."""
+        from ..core import pipeline  # imported on first bake: keeps add-on registration light
+
+        start = time.perf_counter()
+        self.result = pipeline.bake(self.extraction.scene, self.settings, progress)
+        self.timings["compute"] = time.perf_counter() - start
+
+    # ----------------------------------------------------------------- 3. finish
+    def finish(self) -> BakeReport:
+        """Main thread: images, manifest, material copies. Raises BakeError after rolling back."""
+        try:
+            report = self._finish()
+        except BaseException as e:
+            self.rollback()
+            if isinstance(e, (writeback.WritebackError, ValueError, KeyError, OSError)):
+                raise BakeError(str(e)) from e
+            raise
+        self.report = report
+        return report
+
+    def _finish(self) -> BakeReport:
+        start = time.perf_counter()
+        plan = self.plan
+        writeback.ensure_directory(plan, self.txn)
+        entries, new_outputs = [], []
+        for name in self.extraction.target_objects:
+            obj = bpy.data.objects.get(name)
+            if obj is None:
+                raise BakeError(f"object {name!r} was deleted or renamed during the bake")
+            pixels = self.result.lightmaps[name]
+            rebake = bool(writeback.owned_images(name) or writeback.owned_materials(name))
+            temp = writeback.image_name(name) + ".pdic_new" if rebake else None
+            image, relpath = writeback.write_image(name, pixels, plan, self.image_format, self.txn, name=temp)
+            copies, warnings = writeback.build_copies(obj, image, self.txn, temporary=rebake)
+            self.warnings += warnings
+            new_outputs.append((obj, image, copies))
+            h, w = pixels.shape[:2]
+            entries.append(dict(
+                name=name, image=relpath, image_name=writeback.image_name(name), uv_map=uvmaps.LIGHTMAP_UV,
+                width=int(w), height=int(h), format="OPEN_EXR", color_depth=writeback.FORMATS[self.image_format],
+                color_space="Non-Color", channels="RGBA", texels=int((pixels[..., 3] > 0).sum()),
+                materials=[c.name.removesuffix(".pdic_new") for c in copies], **self.unwraps.get(name, {})))
+        self.timings["write_images"] = time.perf_counter() - start
+
+        stats = dict(self.result.stats)
+        stats["seconds"] = {**{f"addon_{k}": round(v, 4) for k, v in self.timings.items()},
+                            **stats.get("seconds", {})}
+        stats["texels"] = self.texel_count
+        settings = asdict(self.settings)
+        manifest_path = None
+        if not plan.pack:
+            manifest_path = plan.directory / core_manifest.FILENAME
+            writeback.replace_file(manifest_path, lambda p: core_manifest.write_manifest(
+                p, entries, stats, settings, self.warnings), self.txn)
+
+        # -- commit: replace the previous outputs of these objects, show the new ones
+        for obj, image, copies in new_outputs:
+            writeback.remove_outputs(obj.name, keep={image, *copies})
+            writeback.assign_copies(obj, copies, self.txn)
+            image.name = writeback.image_name(obj.name)
+            for copy in copies:
+                copy.name = copy.name.removesuffix(".pdic_new")
+        self.txn.commit()
+        self.timings["finish"] = time.perf_counter() - start
+        return BakeReport(entries, list(self.warnings), stats, plan, manifest_path)
+
+    # ----------------------------------------------------------------- undo
+    def rollback(self) -> list[str]:
+        """Undo everything prepare()/finish() changed (safe to call more than once)."""
+        errors = self.txn.rollback()
+        return errors
+
+    # ----------------------------------------------------------------- all at once
+    def run(self, progress: Progress | None = None) -> BakeReport:
+        """prepare, compute, finish on this thread (background mode, scripts)."""
+        self.prepare()
+        try:
+            self.compute(progress)
+        except BaseException as e:
+            self.rollback()
+            if isinstance(e, (SceneError, ValueError)):
+                raise BakeError(str(e)) from e
+            raise
+        return self.finish()

@@ -1,0 +1,108 @@
+"""Bake settings stored in the .blend: ``scene.pdic`` and ``object.pdic``.
+
+The UI edits these properties; :func:`to_settings` turns them into the frozen
+:class:`core.settings.BakeSettings` that crosses into the core (STYLE.md,
+principle 2). Tooltips are the settings' own documentation.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import bpy
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
+
+from ..core import settings as core_settings
+
+DEFAULTS = core_settings.BakeSettings()
+DEFAULT_OUTPUT = "//pdic_lightmaps/"
+
+QUALITY_ITEMS = (
+    ("PREVIEW", "Preview", "Passes 1-2: photon map and coarse irradiance cache (fast, for layout)"),
+    ("FINAL", "Final", "Passes 1-3: irradiance cache refined with photon-path reuse"),
+    ("CUSTOM", "Custom", "Passes 1-3 with the photon, bounce and cache settings below"),
+)
+IMAGE_FORMAT_ITEMS = (
+    ("EXR_HALF", "OpenEXR Half", "16-bit float OpenEXR (ZIP): half the size, 3 significant digits"),
+    ("EXR_FLOAT", "OpenEXR Float", "32-bit float OpenEXR (ZIP): exact"),
+)
+# BakeSettings fields a quality preset decides unless the quality is CUSTOM.
+PRESET_FIELDS = ("photons", "max_bounces", "a", "hemisphere_theta", "hemisphere_phi")
+
+
+class PDIC_SceneSettings(bpy.types.PropertyGroup):
+    """Scene-wide PDIC bake settings."""
+
+    quality: EnumProperty(name="Quality", items=QUALITY_ITEMS, default="FINAL",
+                          description="Preview, Final, or Custom photon/cache settings")
+    photons: IntProperty(name="Photons", default=DEFAULTS.photons, min=1000, soft_max=4_000_000,
+                         description="Photons emitted, shared among lights by power (Custom quality). Typical 100k-4M")
+    max_bounces: IntProperty(name="Max Bounces", default=DEFAULTS.max_bounces, min=1, max=64,
+                             description="Diffuse bounces a photon may make (Custom quality)")
+    a: FloatProperty(name="Accuracy a", default=DEFAULTS.a, min=0.05, max=2.0, step=5, precision=2,
+                     description="Ward's accuracy a: smaller = more cache records, fewer artefacts (Custom quality). "
+                                 "Typical 0.2-0.5")
+    hemisphere_theta: IntProperty(name="Hemisphere Rows", default=DEFAULTS.hemisphere_theta, min=1, max=256,
+                                  description="Theta rows of the stratified hemisphere used to refine records")
+    hemisphere_phi: IntProperty(name="Hemisphere Columns", default=DEFAULTS.hemisphere_phi, min=1, max=512,
+                                description="Phi columns of the stratified hemisphere used to refine records")
+    texel_density: FloatProperty(name="Texel Density", default=DEFAULTS.texel_density, min=0.0, soft_max=256.0,
+                                 description="Texels per scene unit (0 = use the default resolution). Typical 8-64 "
+                                             "for metre-scale scenes")
+    default_resolution: IntProperty(name="Resolution", default=DEFAULTS.default_resolution, min=8, max=8192,
+                                    description="Light-map width and height of an object without an override, "
+                                                "when the texel density is 0")
+    direct: BoolProperty(name="Direct", default=True, description="Bake direct light")
+    indirect: BoolProperty(name="Indirect", default=True, description="Bake indirect light (irradiance cache)")
+    seed: IntProperty(name="Seed", default=0, min=0, description="Random seed; the same seed gives the same light maps")
+    threads: IntProperty(name="Threads", default=0, min=0, max=1024, description="Worker threads (0 = all cores)")
+    output_folder: StringProperty(name="Output Folder", default=DEFAULT_OUTPUT, subtype="DIR_PATH",
+                                  description="Folder for the light-map images and pdic_manifest.json "
+                                              "(// = next to the .blend)")
+    image_format: EnumProperty(name="Image Format", items=IMAGE_FORMAT_ITEMS, default="EXR_HALF",
+                               description="File format of the light maps")
+
+
+class PDIC_ObjectSettings(bpy.types.PropertyGroup):
+    """Per-object PDIC bake settings."""
+
+    bake: BoolProperty(name="Bake Light Map", default=True,
+                       description="Give this object a light map (off: it only casts shadows and bounces light)")
+    resolution: IntProperty(name="Resolution Override", default=0, min=0, max=8192,
+                            description="Light-map width and height for this object (0 = from the scene settings)")
+
+
+def to_settings(props, **overrides) -> core_settings.BakeSettings:
+    """The frozen core settings for ``scene.pdic`` (plus explicit field overrides).
+
+    PREVIEW and FINAL take photons, bounces, ``a`` and the hemisphere from their
+    preset; CUSTOM takes them from the properties. Passes, seed, resolution,
+    texel density and threads always come from the properties.
+    """
+    base = core_settings.preset(props.quality)
+    fields = dict(
+        direct=bool(props.direct), indirect=bool(props.indirect), seed=int(props.seed),
+        texel_density=float(props.texel_density), default_resolution=int(props.default_resolution),
+        threads=int(props.threads),
+    )
+    if props.quality == "CUSTOM":
+        fields.update({name: getattr(props, name) for name in PRESET_FIELDS})
+        fields["a"] = float(fields["a"])
+    fields.update(overrides)
+    return replace(base, **fields)
+
+
+classes = (PDIC_SceneSettings, PDIC_ObjectSettings)
+
+
+def register():
+    for cls in classes:
+        bpy.utils.register_class(cls)
+    bpy.types.Scene.pdic = PointerProperty(type=PDIC_SceneSettings)
+    bpy.types.Object.pdic = PointerProperty(type=PDIC_ObjectSettings)
+
+
+def unregister():
+    del bpy.types.Object.pdic
+    del bpy.types.Scene.pdic
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)
