@@ -40,9 +40,9 @@ import xatlas
 # Bump when anything here changes the UVs produced for the same input (cache key).
 ALGORITHM_VERSION = 1
 # Pass-2 repacking: at most this many packings to fit the requested resolution.
-MAX_PACK_ATTEMPTS = 8
+MAX_PACK_ATTEMPTS = 10
 # Pass 2 is skipped when pass 1's atlas already fits and fills at least this much of it.
-GOOD_FILL = 0.9
+GOOD_FILL = 0.95
 
 
 # --------------------------------------------------------------------------- resolution
@@ -241,17 +241,29 @@ def _repack(p, xref, index, uv_texel, valid, resolution, padding, tpu):
     faces = index[valid].astype(np.uint32)
     chart_options = xatlas.ChartOptions()
     chart_options.use_input_mesh_uvs = True
-    best = None
-    for attempt in range(MAX_PACK_ATTEMPTS):
+    # Search texels-per-unit: the largest tried that fits, stopping once the atlas
+    # fills >= GOOD_FILL of the side. Packing size is not linear in the scale
+    # (padding and 4x4 block alignment are fixed), hence a search, not one rescale.
+    best, best_tpu, fits, too_big = None, 0.0, None, None
+    for _ in range(MAX_PACK_ATTEMPTS):
         atlas = xatlas.Atlas()
         atlas.add_mesh(positions, faces, None, uvs)
-        atlas.generate(chart_options, _pack_options(resolution, padding, tpu))
+        atlas.generate(chart_options, _pack_options(0, padding, tpu))  # 0: one atlas, any size
         size = max(atlas.width, atlas.height)
-        if size <= resolution and atlas.atlas_count == 1:
-            best = atlas
-            break
-        # shrink: packing is not linear in scale (padding is fixed), so aim a little lower each time
-        tpu *= (resolution / size) * (0.99 - 0.02 * attempt)
+        if size <= resolution:
+            if tpu > best_tpu:
+                best, best_tpu = atlas, tpu
+            fits = tpu
+            if size >= GOOD_FILL * resolution or (too_big is not None and too_big / fits < 1.01):
+                break
+        else:
+            too_big = tpu
+        if fits is None:
+            tpu *= (resolution / size) ** 1.5 * 0.98
+        elif too_big is None:
+            tpu *= resolution / size
+        else:
+            tpu = math.sqrt(fits * too_big)
     if best is None:
         raise RuntimeError(f"unwrap: xatlas could not pack the charts into {resolution}x{resolution} "
                            f"with padding {padding} after {MAX_PACK_ATTEMPTS} attempts")

@@ -239,11 +239,20 @@ class BakeJob:
                                         "unwrap_cached": result.from_cache}
         self.timings["unwrap"] = time.perf_counter() - start
 
-        # -- extract the core scene from the evaluated depsgraph
+        # -- extract the core scene from the evaluated depsgraph, seeing the user's materials
+        # (not PDIC copies: their emission is the previous bake's light)
         start = time.perf_counter()
+        showing = [o for o in self.scene.objects if writeback.is_baked_shading(o)]
+        writeback.set_shading(showing, baked=False)
+        for obj in showing:
+            self.txn.add(lambda obj=obj: writeback.set_shading([obj], baked=True), f"show baked lighting on {obj.name}")
         depsgraph = self.context.evaluated_depsgraph_get()
         depsgraph.update()
-        self.extraction = extract_scene(depsgraph, objects, uvmaps.LIGHTMAP_UV, self.resolutions)
+        try:
+            self.extraction = extract_scene(depsgraph, objects, uvmaps.LIGHTMAP_UV, self.resolutions)
+        finally:  # objects that are not re-baked show their light maps again at once
+            targets = {o.name for o in objects}
+            writeback.set_shading([o for o in showing if o.name not in targets], baked=True)
         self.warnings += self.extraction.warnings
         for name, count in self.extraction.degenerate_triangles.items():
             self.warnings.append(f"{name!r}: {count} degenerate (zero-area) triangles are not baked")

@@ -1,4 +1,4 @@
-"""Direct irradiance against closed forms and against numbers measured from Cycles 5.0 bakes.
+"""Direct irradiance (and texture albedo) against closed forms and numbers measured from Cycles 5.0 bakes.
 
 Scenes are built by hand: a floor quad in z = 0 (normal +z) carries the
 receiving points; lights and occluders are placed above it.
@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from pdic.core import scene as sc
+from pdic.core.albedo import albedo, sample_texture
 from pdic.core.direct import EMISSIVE_KEY, DirectResult, direct_irradiance
 from pdic.core.rays import RayCaster
 
@@ -317,3 +318,55 @@ def test_chunks_concatenate_to_the_whole():
     parts = DirectResult.concatenate([run(s, p[i:i + 10], n[i:i + 10]) for i in range(0, len(p), 10)])
     assert np.array_equal(parts.E, whole.E)
     assert parts.shadow_rays == whole.shadow_rays and parts.skipped == whole.skipped
+
+
+def test_soft_spot_light_masks_each_sample_as_cycles():
+    # Cycles 5.0: spot P=100, radius 0.3 (soft falloff), at (0,0,1) down, 60 deg, blend 1;
+    # 16x16 bake of the 2x2 floor, texels at y = 0.0625 and x = 0.0625, 0.3125, 0.5625.
+    spot = sc.SpotLight("spot", np.array([0, 0, 1.0]), np.array([0, 0, -1.0]), np.full(3, 100.0), np.radians(30), 1.0, 0.3)
+    p = np.array([[0.0625, 0.0625, 0], [0.3125, 0.0625, 0], [0.5625, 0.0625, 0]])
+    r = run(make_scene(FLOOR, [spot]), p, np.tile([0, 0, 1.0], (3, 1)), samples=2048)
+    assert np.allclose(r.E[:, 0], [6.352, 3.484, 0.804], rtol=0.03)  # texel averaging on the slope
+
+
+def test_area_light_flush_with_a_ceiling_is_not_shadowed_by_it():
+    h = 0.7
+    ceiling = quad((0, 0, h), 1.0, 1.0, v=(0, -1.0, 0))
+    light = sc.AreaLight("a", np.array([0.2, 0.1, h]), np.array([0, 0, -1.0]), np.array([1.0, 0, 0]),
+                         np.array([0, 1.0, 0]), 0.6, 0.6, "SQUARE", np.ones(3))
+    p, n = floor_points(n=3, half=0.8)
+    r = run(make_scene(FLOOR + ceiling, [light]), p, n, samples=1024)
+    assert np.allclose(r.E[:, 0], area_quadrature(p, (0.2, 0.1, h), 0.6, 0.6, 1.0), rtol=0.01)
+
+
+# --------------------------------------------------------------------------- albedo
+# 2x2 texture, row 0 = bottom (v < 0.5): bottom-left red, bottom-right green, top-left blue, top-right white.
+PIX = np.array([[[1, 0, 0], [0, 1, 0]], [[0, 0, 1], [1, 1, 1]]], np.float32)
+
+
+def test_closest_texture_lookup_uses_bottom_row_first_and_repeats():
+    tex = sc.Texture("t", PIX, "Closest")
+    uv = np.array([[0.25, 0.25], [0.75, 0.25], [0.25, 0.75], [0.75, 0.75], [1.25, -0.75], [-0.25, 2.25]])
+    got = sample_texture(tex, uv)
+    assert np.array_equal(got, [[1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1], [1, 0, 0], [0, 1, 0]])
+
+
+def test_linear_texture_lookup_is_bilinear_between_pixel_centres_with_wrap():
+    tex = sc.Texture("t", PIX, "Linear")
+    uv = np.array([[0.25, 0.25], [0.5, 0.25], [0.5, 0.5], [0.0, 0.25], [0.375, 0.25]])
+    got = sample_texture(tex, uv)
+    expected = [[1, 0, 0], [0.5, 0.5, 0], [0.5, 0.5, 0.5], [0.5, 0.5, 0], [0.75, 0.25, 0]]
+    assert np.allclose(got, expected, atol=1e-6)
+
+
+def test_albedo_interpolates_texture_uv_and_returns_constant_colours():
+    tris = np.array(FLOOR, float)
+    uvs = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], np.float32)
+    geometry = sc.Geometry(tris, np.tile([0, 0, 1.0], (2, 3, 1)), uvs, np.array([0, 1]), np.zeros(2))
+    materials = sc.Materials(("plain", "textured"), np.array([[0.2, 0.4, 0.6], [0.9, 0.9, 0.9]]),
+                             np.array([-1, 0]), np.zeros((2, 3)))
+    s = sc.Scene(geometry, materials, textures=(sc.Texture("t", PIX, "Closest"),))
+    # Triangle 1, barycentric (u, v) = (0.1, 0.8): uv = 0.1 (1,1) + 0.8 (0,1) = (0.1, 0.9) -> top-left blue.
+    got = albedo(s, np.array([0, 1, 1]), np.array([[0.3, 0.3], [0.1, 0.8], [0.8, 0.1]]))
+    assert got.dtype == np.float32
+    assert np.allclose(got, [[0.2, 0.4, 0.6], [0, 0, 1], [1, 1, 1]])

@@ -129,11 +129,11 @@ def test_collection_instance_is_an_occluder_not_a_target(blender):
 def test_nested_collection_instances_are_placed_by_both_transforms(blender):
     inner, outer = blender.data.collections.new("Inner"), blender.data.collections.new("Outer")
     add_mesh(blender, "Rock", QUAD_VERTS, QUAD_FACES, collection=inner)
-    for name, collection, instanced, location, parent in (("EInner", outer, inner, (0, 0, 5), None),
-                                                          ("EOuter", None, outer, (10, 0, 0), None)):
+    for name, home, instanced, location in (("EInner", outer, inner, (0, 0, 5)),
+                                            ("EOuter", blender.context.scene.collection, outer, (10, 0, 0))):
         empty = blender.data.objects.new(name, None)
         empty.instance_type, empty.instance_collection, empty.location = "COLLECTION", instanced, location
-        (collection or blender.context.scene.collection).objects.link(empty)
+        home.objects.link(empty)
     floor = add_mesh(blender, "Floor", QUAD_VERTS, QUAD_FACES)
     add_light(blender, "Lamp")
     ex = run(blender, [floor])

@@ -42,7 +42,7 @@ def build_scene(bpy, light=True):
     tex_mat = bpy.data.materials.new("Textured")
     tree = tex_mat.node_tree
     img = bpy.data.images.new("checker", 8, 8)
-    img.generated_type = "CHECKER"
+    img.generated_type = "COLOR_GRID"
     tex = tree.nodes.new("ShaderNodeTexImage")
     tex.image = img
     tree.links.new(tex.outputs["Color"], tree.nodes["Principled BSDF"].inputs["Base Color"])

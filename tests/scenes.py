@@ -1,0 +1,56 @@
+"""Hand-built core scenes with closed-form answers, shared by the core tests (no bpy)."""
+from __future__ import annotations
+
+import numpy as np
+
+from pdic.core.scene import BakeTarget, Geometry, Materials, Scene, recentre
+
+
+def icosphere(subdivisions: int = 3, radius: float = 1.0, inward: bool = True) -> np.ndarray:
+    """(T, 3, 3) triangles of an icosphere; normals point inward when ``inward``."""
+    t = (1 + 5 ** 0.5) / 2
+    v = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t], [0, -1, -t], [0, 1, -t],
+                  [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], float)
+    f = [[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2], [10, 7, 6],
+         [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10],
+         [8, 6, 7], [9, 8, 1]]
+    tris = v[np.array(f)]
+    tris /= np.linalg.norm(tris, axis=2, keepdims=True)
+    for _ in range(subdivisions):
+        a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
+        ab, bc, ca = [(x / np.linalg.norm(x, axis=1, keepdims=True)) for x in (a + b, b + c, c + a)]
+        tris = np.concatenate([np.stack(s, 1) for s in ([a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca])])
+    tris = tris * radius
+    if inward:
+        tris = tris[:, [0, 2, 1]]
+    return tris
+
+
+def geometry(tris: np.ndarray, material: np.ndarray | None = None, target: np.ndarray | None = None) -> Geometry:
+    tris = np.asarray(tris, float)
+    n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    T = len(tris)
+    return Geometry(tris, np.repeat(n[:, None], 3, axis=1), np.zeros((T, 3, 2)),
+                    np.zeros(T, np.int32) if material is None else material,
+                    np.full(T, -1, np.int32) if target is None else target)
+
+
+def quad(corner, edge_u, edge_v) -> np.ndarray:
+    """Two triangles (2, 3, 3) spanning corner + s edge_u + t edge_v; normal edge_u x edge_v."""
+    c, u, v = (np.asarray(x, float) for x in (corner, edge_u, edge_v))
+    return np.array([[c, c + u, c + u + v], [c, c + u + v, c + v]])
+
+
+def plane_target(name: str, first_triangle: int, resolution: int) -> BakeTarget:
+    """A bake target for a quad made by :func:`quad` (UVs = the quad's own s, t)."""
+    uv = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], np.float32)
+    return BakeTarget(name, np.array([first_triangle, first_triangle + 1]), uv, resolution, resolution)
+
+
+def furnace(albedo: float, radiance: float, subdivisions: int = 3) -> Scene:
+    """Inside of a sphere whose every triangle emits ``radiance`` and reflects ``albedo``."""
+    tris = icosphere(subdivisions)
+    mats = Materials(("wall",), np.full((1, 3), albedo), np.array([-1]), np.full((1, 3), radiance))
+    local, origin = recentre(tris)
+    return Scene(geometry(local), mats, origin_world=origin)

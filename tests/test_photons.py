@@ -1,0 +1,106 @@
+"""Pass 1 and pass 2 on closed forms: photon flux, white furnace, Algorithm 1 invariants."""
+import numpy as np
+import pytest
+
+from pdic.core import emission
+from pdic.core.executor import Executor
+from pdic.core.irradiance_cache import CacheParameters, PhotonDensity, generate_irradiance_cache
+from pdic.core.photons import PhotonMap, trace_photons
+from pdic.core.rays import RayCaster
+from pdic.core.scene import AreaLight, Materials, PointLight, Scene, SpotLight, SunLight, World
+
+from scenes import furnace, geometry, quad
+
+
+def _floor_scene(light=None, world=None):
+    tris = quad([-1, -1, 0], [2, 0, 0], [0, 2, 0])
+    return Scene(geometry(tris), Materials.default(1), lights=(light,) if light else (), world=world or World())
+
+
+def _emitted_power(scene, photons=20_000):
+    plan = emission.plan(scene, photons)
+    total = np.zeros(3)
+    for i, batch in enumerate(plan.batches(4096)):
+        _, _, power = emission.emit(scene, batch, np.random.default_rng(i))
+        total += power.sum(0)
+    return total, plan
+
+
+@pytest.mark.parametrize("light, flux", [
+    (PointLight("p", np.array([0, 0, 1.0]), np.array([100.0, 50, 25])), [100, 50, 25]),
+    (AreaLight("a", np.array([0, 0, 1.0]), np.array([0, 0, -1.0]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]),
+               0.5, 0.25, "RECTANGLE", np.array([3.0, 3, 3])), [3 * np.pi * 0.125] * 3),
+    (AreaLight("d", np.array([0, 0, 1.0]), np.array([0, 0, -1.0]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]),
+               0.5, 0.5, "DISK", np.array([2.0, 2, 2])), [2 * np.pi * np.pi * 0.0625] * 3),
+])
+def test_emitted_photon_flux_equals_light_power(light, flux):
+    total, plan = _emitted_power(_floor_scene(light))
+    assert plan.total == 20_000
+    assert np.allclose(total, flux, rtol=1e-9)
+
+
+def test_spot_emits_its_cone_share_of_point_power():
+    # Hard 90-degree cone (half angle 45): flux = P/(4 pi) * 2 pi (1 - cos 45).
+    spot = SpotLight("s", np.array([0, 0, 1.0]), np.array([0, 0, -1.0]), np.array([40.0, 40, 40]),
+                     np.pi / 4, 0.0)
+    total, _ = _emitted_power(_floor_scene(spot))
+    assert total[0] == pytest.approx(40 / (4 * np.pi) * 2 * np.pi * (1 - np.cos(np.pi / 4)), rel=1e-3)
+
+
+@pytest.mark.parametrize("light, world, expected", [
+    (SunLight("sun", np.array([0, 0, 1.0]), np.array([3.0, 3, 3])), None, 3.0),
+    (SunLight("tilted", np.array([0, 0.6, 0.8]), np.array([2.0, 2, 2])), None, 1.6),
+    (None, World(np.array([0.5, 0.5, 0.5])), np.pi * 0.5),
+    (PointLight("p", np.array([0, 0, 10.0]), np.array([4000.0] * 3)), None, 4000 / (4 * np.pi * 100)),
+])
+def test_first_hit_photon_density_gives_analytic_irradiance(light, world, expected):
+    scene = _floor_scene(light, world)
+    caster = RayCaster(scene.geometry.positions)
+    pm, stats = trace_photons(scene, caster, 200_000, 1, seed=3)
+    first = pm.bounce == 0
+    central = first & (np.abs(pm.p[:, 0]) < 0.5) & (np.abs(pm.p[:, 1]) < 0.5)
+    E = pm.power[central, 0].sum() / 1.0  # flux into the central 1 x 1 square
+    assert E == pytest.approx(expected, rel=0.05)
+    assert np.all(pm.n[first, 2] > 0.99)  # stored on the lit side
+
+
+def test_photons_leaving_an_open_scene_stop_at_once():
+    scene = _floor_scene(SunLight("sun", np.array([0, 0, 1.0]), np.array([1.0, 1, 1])))
+    pm, stats = trace_photons(scene, RayCaster(scene.geometry.positions), 10_000, 5, seed=0)
+    # Every photon that misses the floor or bounces off it escapes; none is traced further.
+    assert stats.escaped == stats.emitted
+    assert stats.rays == stats.emitted + int((pm.bounce == 0).sum() * 0.8 * 1.05) or stats.rays <= stats.emitted * 2
+    assert pm.bounce.max() == 0
+
+
+def test_path_links_point_to_the_previous_hit():
+    scene = furnace(0.8, 1.0, subdivisions=2)
+    pm, _ = trace_photons(scene, RayCaster(scene.geometry.positions), 5_000, 6, seed=1, executor=Executor(2))
+    linked = pm.prev >= 0
+    assert linked.any()
+    prev = pm.prev[linked]
+    assert np.all(pm.bounce[linked] == pm.bounce[prev] + 1)
+    assert np.allclose(pm.last_hit[linked], pm.p[prev], atol=1e-4)
+
+
+def test_bytes_per_photon_is_as_documented():
+    pm = PhotonMap.empty()
+    assert PhotonMap.BYTES_PER_PHOTON == 101
+    scene = furnace(0.5, 1.0, subdivisions=1)
+    pm, _ = trace_photons(scene, RayCaster(scene.geometry.positions), 1000, 3, seed=0)
+    assert pm.nbytes == len(pm) * PhotonMap.BYTES_PER_PHOTON
+
+
+def test_white_furnace_cache_converges_to_analytic():
+    # Uniform emission L and albedo rho in a closed sphere: E = pi L / (1 - rho); indirect = pi L rho / (1 - rho).
+    rho, L = 0.5, 1.0
+    scene = furnace(rho, L, subdivisions=3)
+    caster = RayCaster(scene.geometry.positions)
+    pm, _ = trace_photons(scene, caster, 200_000, 40, seed=5, executor=Executor(2))
+    params = CacheParameters(a=0.5, r_nearest=16, R_min=0.05, R_max=0.5)
+    cache, zones, stats = generate_irradiance_cache(PhotonDensity(pm), params, seed=0)
+    expected = np.pi * L * rho / (1 - rho)
+    assert stats.records == len(cache) > 10
+    assert np.mean(cache.E[:, 0]) == pytest.approx(expected, rel=0.05)
+    assert np.all(pm.w_sum >= 1 / params.a - 1e-9)  # Algorithm 1 leaves no photon uncovered
+    assert np.mean(pm.E_indirect()[:, 0]) == pytest.approx(expected, rel=0.05)
