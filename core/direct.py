@@ -109,7 +109,7 @@ def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, norma
         return out
     for light in scene.lights:
         if isinstance(light, SpotLight):
-            _point_like(out, "spot", light, _spot_attenuation(light), caster, p, n_s, n_g, samples, rng)
+            _point_like(out, "spot", light, spot_attenuation(light), caster, p, n_s, n_g, samples, rng)
         elif isinstance(light, PointLight):
             _point_like(out, "point", light, None, caster, p, n_s, n_g, samples, rng)
         elif isinstance(light, SunLight):
@@ -191,7 +191,7 @@ def _skip_all(out: DirectResult, key: str, n: int):
 
 
 # --------------------------------------------------------------------------- point and spot
-def _spot_attenuation(light: SpotLight):
+def spot_attenuation(light: SpotLight):
     """Cycles' spot mask of the unit direction light -> receiver (kernel/light/spot.h).
 
     f = smoothstep((cos_a - cos_h) * spot_smooth), spot_smooth = 1 / ((1 - cos_h) * blend),

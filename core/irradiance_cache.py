@@ -44,6 +44,8 @@ from .ward import accepted, ward_weight
 _REBUILD_EVERY = 512
 # A candidate block scanned at once when looking for uncovered candidates.
 _BLOCK = 4096
+SAME_SURFACE_COS = 0.7
+"""Photons count toward E_k only within ~45 degrees of the record's normal."""
 
 
 @dataclass
@@ -144,25 +146,35 @@ class PhotonDensity:
         d = np.maximum(d, 1e-12 * R_max)
         return float(ok.sum() / np.sum(1.0 / d))
 
-    def zone(self, p_k: np.ndarray, n_k: np.ndarray, R_k: float, a: float) -> tuple[np.ndarray, np.ndarray]:
-        """Photons within a R_k passing Equation 2, and their Ward weights."""
-        idx = np.asarray(self.tree.query_ball_point(p_k, a * R_k), dtype=np.int64)
+    def sphere(self, p_k: np.ndarray, radius: float) -> np.ndarray:
+        """Indices (int64) of the photons within ``radius`` of p_k: the influence sphere S_{a R_k}."""
         self.queries += 1
-        if len(idx) == 0:
-            return idx, np.zeros(0)
-        m = len(idx)
-        w = ward_weight(self.p[idx], self.n[idx], np.broadcast_to(p_k, (m, 3)), np.broadcast_to(n_k, (m, 3)),
-                        np.full(m, R_k))
-        ok = accepted(w, a, self.p[idx], self.n[idx], np.broadcast_to(p_k, (m, 3)),
-                      np.broadcast_to(n_k, (m, 3)), np.full(m, R_k))
-        return idx[ok], w[ok]
+        return np.asarray(self.tree.query_ball_point(p_k, radius), dtype=np.int64)
 
-    def epanechnikov_irradiance(self, p_k: np.ndarray, zone: np.ndarray, radius: float) -> tuple[np.ndarray, int]:
-        """E_k: 2D Epanechnikov density estimate over the zone's indirect photons (bandwidth = radius).
+    def zone(self, sphere: np.ndarray, p_k: np.ndarray, n_k: np.ndarray, R_k: float, a: float
+             ) -> tuple[np.ndarray, np.ndarray]:
+        """Photons of the sphere that record k contributes to (Equation 2), and their Ward weights."""
+        m = len(sphere)
+        if m == 0:
+            return sphere, np.zeros(0)
+        w = ward_weight(self.p[sphere], self.n[sphere], np.broadcast_to(p_k, (m, 3)),
+                        np.broadcast_to(n_k, (m, 3)), np.full(m, R_k))
+        ok = accepted(w, a, self.p[sphere], self.n[sphere], np.broadcast_to(p_k, (m, 3)),
+                      np.broadcast_to(n_k, (m, 3)), np.full(m, R_k))
+        return sphere[ok], w[ok]
+
+    def epanechnikov_irradiance(self, p_k: np.ndarray, n_k: np.ndarray, sphere: np.ndarray, radius: float
+                                ) -> tuple[np.ndarray, int]:
+        """E_k: 2D Epanechnikov density estimate over the sphere's indirect photons (bandwidth = radius).
 
         K(d) = 2 / (pi r^2) * (1 - d^2 / r^2), which integrates to 1 over the disc of radius r.
+        Photons whose normal disagrees with n_k (n . n_k < :data:`SAME_SURFACE_COS`: another
+        wall of a corner, the far side of a thin wall) are rejected. The selection is by
+        distance, not by Ward's weight: the kernel is normalised over the whole disc, and
+        on a curved surface Equation 2 would accept a smaller region than that disc.
         """
-        ind = zone[self.is_indirect[zone]]
+        ind = sphere[self.is_indirect[sphere]]
+        ind = ind[self.n[ind] @ n_k >= SAME_SURFACE_COS]
         if len(ind) == 0:
             return np.zeros(3), 0
         d2 = np.sum((self.p[ind] - p_k) ** 2, axis=1)
@@ -215,8 +227,9 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
             R_k = density.harmonic_mean_distance(p_k, n_k, params.r_nearest, params.R_max)
             R_k = min(max(R_k, params.R_min), params.R_max)
             R_k = clamp.clamp(p_k, R_k)
-            zone, w = density.zone(p_k, n_k, R_k, a)
-            E_k, used = density.epanechnikov_irradiance(p_k, zone, a * R_k)
+            sphere = density.sphere(p_k, a * R_k)
+            zone, w = density.zone(sphere, p_k, n_k, R_k, a)
+            E_k, used = density.epanechnikov_irradiance(p_k, n_k, sphere, a * R_k)
             if candidate_is_photon:
                 members, w_members = zone, w
             else:

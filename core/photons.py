@@ -105,11 +105,13 @@ class PhotonBatchResult:
 
 
 def trace_photon_batch(scene: Scene, caster: RayCaster, origins: np.ndarray, directions: np.ndarray,
-                       power: np.ndarray, max_bounces: int, rng: np.random.Generator) -> PhotonBatchResult:
+                       power: np.ndarray, origin_normals: np.ndarray, max_bounces: int,
+                       rng: np.random.Generator) -> PhotonBatchResult:
     """Trace one batch of emitted photons through up to ``max_bounces`` diffuse reflections.
 
-    origins, directions : (m, 3) float64 emitted rays (free-space origins).
+    origins, directions : (m, 3) float64 emitted rays.
     power : (m, 3) float64 watts per photon.
+    origin_normals : (m, 3) normal of the emitting surface (zero for free-space origins).
     Returns the stored hits with ``prev`` local to this batch.
     """
     geometry_n = scene.geometry.face_normals()
@@ -119,7 +121,7 @@ def trace_photon_batch(scene: Scene, caster: RayCaster, origins: np.ndarray, dir
     escaped = 0
     o, d, phi = origins, directions, power
     prev = np.full(len(o), -1, np.int64)
-    surface_n = None  # origins of the first wave lie on lights, not surfaces
+    surface_n = origin_normals
     for bounce in range(max_bounces + 1):
         if len(o) == 0:
             break
@@ -211,8 +213,8 @@ def trace_photons(scene: Scene, caster: RayCaster, photons: int, max_bounces: in
     def run(job):
         index, batch = job
         rng = np.random.default_rng([seed, 1, index])
-        o, d, phi = emission.emit(scene, batch, rng)
-        result = trace_photon_batch(scene, serial, o, d, phi, max_bounces, rng)
+        o, d, phi, n0 = emission.emit(scene, batch, rng)
+        result = trace_photon_batch(scene, serial, o, d, phi, n0, max_bounces, rng)
         done[0] += 1
         if progress is not None:
             progress.update(done[0] / len(batches))

@@ -167,18 +167,22 @@ class RayCaster:
                         target_normals: np.ndarray | None = None) -> np.ndarray:
         """(n,) bool: is the segment from each surface point to each target point unblocked?
 
-        Both ends are kept ``epsilon`` away from their surfaces so neither the
-        receiver nor an emitter's own triangle occludes the segment.
+        Each end is pushed ``epsilon`` off its own surface, along its normal and
+        toward the other end, and the segment is measured between the pushed
+        ends: neither the receiver nor the emitter's own surface (or a ceiling
+        it sits flush with) can occlude it, at any angle of incidence.
         """
         points = np.asarray(points, dtype=np.float64)
         targets = np.asarray(targets, dtype=np.float64)
-        delta = targets - points
-        dist = np.linalg.norm(delta, axis=1)
-        safe = np.maximum(dist, 1e-300)
-        directions = delta / safe[:, None]
-        shorten = self.epsilon * (2.0 if target_normals is not None else 1.0)
-        t_max = np.maximum(dist - shorten, 0.0)
-        visible = ~self.occluded(points, directions, t_max, normals)
+        toward = _unit(targets - points)
+        start = self.offset_origins(points, normals, toward)
+        end = targets if target_normals is None else self.offset_origins(targets, target_normals, -toward)
+        segment = end - start
+        dist = np.linalg.norm(segment, axis=1)
+        directions = np.divide(segment, dist[:, None], out=np.zeros_like(segment), where=dist[:, None] > 0)
+        # Stop short of the far end by epsilon so a target on a surface never hits it.
+        t_max = np.maximum(dist - (self.epsilon if target_normals is None else 0.0), 0.0)
+        visible = ~self.occluded(start, directions, t_max)
         return visible & (dist > 0)
 
 

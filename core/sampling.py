@@ -177,6 +177,22 @@ def uniform_ellipse(u: np.ndarray, size_u, size_v) -> tuple[np.ndarray, np.ndarr
 
 
 # --------------------------------------------------------------------------- cones and spheres
+def uniform_sphere(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Uniform directions on the unit sphere.
+
+    Returns
+    -------
+    w : (..., 3) float64 unit directions.
+    pdf : (...,) float64 solid-angle density 1 / (4 pi).
+    """
+    u = np.asarray(u, dtype=np.float64)
+    z = 1.0 - 2.0 * u[..., 0]
+    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    phi = 2.0 * np.pi * u[..., 1]
+    w = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=-1)
+    return w, np.full(w.shape[:-1], 1.0 / (4.0 * np.pi))
+
+
 def uniform_cone(u: np.ndarray, one_minus_cos_max) -> tuple[np.ndarray, np.ndarray]:
     """Uniform directions in the z-up cone whose half-angle has cosine 1 - ``one_minus_cos_max``.
 

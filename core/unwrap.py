@@ -287,7 +287,7 @@ def _join_split_polygons(p, tri, poly, valid, index, xref, uv_texel, chart_of_ve
     keeping their 3-D shape at the chart's local scale and the chart's winding.
     An unfolded corner whose vertex already has a UV in that chart reuses it.
     If an unfolded triangle then overlaps another triangle (checked by
-    rasterising at 4x4 points per texel), the whole polygon is detached as an
+    rasterising at 8x8 points per texel), the whole polygon is detached as an
     island of its own instead. Pass 2 then repacks, so grown charts and new
     islands cannot overlap other charts.
 
@@ -331,7 +331,7 @@ def _join_split_polygons(p, tri, poly, valid, index, xref, uv_texel, chart_of_ve
     uv_unit = (layout.uv()[layout.index] / [width, height]).astype(np.float32)
     candidates = _near(uv_unit, valid, moved, width, height)
     bad = np.zeros(len(tri), bool)
-    bad[candidates] = overlapping(uv_unit[candidates], width, height, 4)
+    bad[candidates] = overlapping(uv_unit[candidates], width, height, 8)
     bad_polys = set(poly[bad & moved].tolist())
     for group, anchor, target in plans:
         if int(poly[group[0]]) in bad_polys:

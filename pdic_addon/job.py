@@ -13,7 +13,6 @@ so an error or a cancel at any point leaves the .blend as it was.
 """
 from __future__ import annotations
 
-import os
 import tempfile
 import time
 from dataclasses import asdict, dataclass, field

@@ -9,6 +9,7 @@ as it was.
 from __future__ import annotations
 
 import threading
+import traceback
 
 import bpy
 from bpy.props import EnumProperty
@@ -31,6 +32,11 @@ def _settings(context):
         from ..core.settings import BakeSettings
         return BakeSettings()
     return to_settings(props)
+
+
+def _internal(error) -> str:
+    return (f"PDIC internal error ({type(error).__name__}: {error}); the file was left unchanged, "
+            f"see the console for the traceback")
 
 
 def _summary(report) -> str:
@@ -72,6 +78,10 @@ class PDIC_OT_bake(bpy.types.Operator):
             report = job.run()
         except (BakeError, SceneError, ValueError) as e:
             self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        except Exception as e:  # a bug: the job has rolled back; say so instead of a bare traceback
+            traceback.print_exc()
+            self.report({"ERROR"}, _internal(e))
             return {"CANCELLED"}
         self._report_done(report)
         return {"FINISHED"}
@@ -138,13 +148,20 @@ class PDIC_OT_bake(bpy.types.Operator):
             self.job.rollback()
             if isinstance(self.error, Cancelled):
                 self.report({"WARNING"}, "PDIC: bake cancelled; nothing was changed")
-            else:
+            elif isinstance(self.error, (SceneError, ValueError)):
                 self.report({"ERROR"}, f"PDIC: {self.error}")
+            else:
+                traceback.print_exception(self.error)
+                self.report({"ERROR"}, _internal(self.error))
             return {"CANCELLED"}
         try:
             report = self.job.finish()
         except (BakeError, SceneError, ValueError) as e:
             self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        except Exception as e:
+            traceback.print_exc()
+            self.report({"ERROR"}, _internal(e))
             return {"CANCELLED"}
         self._report_done(report)
         return {"FINISHED"}

@@ -71,20 +71,22 @@ class PDIC_ObjectSettings(bpy.types.PropertyGroup):
                             description="Light-map width and height for this object (0 = from the scene settings)")
 
 
-def to_settings(props, **overrides) -> core_settings.BakeSettings:
+def to_settings(props, quality: str | None = None, **overrides) -> core_settings.BakeSettings:
     """The frozen core settings for ``scene.pdic`` (plus explicit field overrides).
 
     PREVIEW and FINAL take photons, bounces, ``a`` and the hemisphere from their
     preset; CUSTOM takes them from the properties. Passes, seed, resolution,
-    texel density and threads always come from the properties.
+    texel density and threads always come from the properties. ``quality``
+    replaces ``props.quality``; ``overrides`` replace any field last.
     """
-    base = core_settings.preset(props.quality)
+    quality = (quality or props.quality).upper()
+    base = core_settings.preset(quality)
     fields = dict(
         direct=bool(props.direct), indirect=bool(props.indirect), seed=int(props.seed),
         texel_density=float(props.texel_density), default_resolution=int(props.default_resolution),
         threads=int(props.threads),
     )
-    if props.quality == "CUSTOM":
+    if quality == "CUSTOM":
         fields.update({name: getattr(props, name) for name in PRESET_FIELDS})
         fields["a"] = float(fields["a"])
     fields.update(overrides)

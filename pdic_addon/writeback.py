@@ -489,7 +489,7 @@ def clear(scene_or_objects=None) -> dict:
     PDIC_Lightmap UV maps. Files on disk are kept. Returns counts per kind.
     """
     objects = _objects_of(scene_or_objects)
-    whole = scene_or_objects is None or isinstance(scene_or_objects, bpy.types.Scene)
+    whole = scene_or_objects is None
     counts = {"materials": 0, "images": 0, "uv_maps": 0}
     # restore slots showing a copy, on any object (even a renamed one)
     for obj in objects:

@@ -21,7 +21,7 @@ def _emitted_power(scene, photons=20_000):
     plan = emission.plan(scene, photons)
     total = np.zeros(3)
     for i, batch in enumerate(plan.batches(4096)):
-        _, _, power = emission.emit(scene, batch, np.random.default_rng(i))
+        _, _, power, _ = emission.emit(scene, batch, np.random.default_rng(i))
         total += power.sum(0)
     return total, plan
 
@@ -58,19 +58,22 @@ def test_first_hit_photon_density_gives_analytic_irradiance(light, world, expect
     caster = RayCaster(scene.geometry.positions)
     pm, stats = trace_photons(scene, caster, 200_000, 1, seed=3)
     first = pm.bounce == 0
-    central = first & (np.abs(pm.p[:, 0]) < 0.5) & (np.abs(pm.p[:, 1]) < 0.5)
+    top = pm.n[:, 2] > 0.99  # the side facing up (the world also lights the underside)
+    central = first & top & (np.abs(pm.p[:, 0]) < 0.5) & (np.abs(pm.p[:, 1]) < 0.5)
     E = pm.power[central, 0].sum() / 1.0  # flux into the central 1 x 1 square
     assert E == pytest.approx(expected, rel=0.05)
-    assert np.all(pm.n[first, 2] > 0.99)  # stored on the lit side
+    assert np.all(np.abs(pm.n[first, 2]) > 0.99)  # stored with the normal of the side hit
 
 
 def test_photons_leaving_an_open_scene_stop_at_once():
     scene = _floor_scene(SunLight("sun", np.array([0, 0, 1.0]), np.array([1.0, 1, 1])))
     pm, stats = trace_photons(scene, RayCaster(scene.geometry.positions), 10_000, 5, seed=0)
-    # Every photon that misses the floor or bounces off it escapes; none is traced further.
-    assert stats.escaped == stats.emitted
-    assert stats.rays == stats.emitted + int((pm.bounce == 0).sum() * 0.8 * 1.05) or stats.rays <= stats.emitted * 2
+    # A photon that misses the floor, or leaves it after a bounce, costs exactly one ray and is dropped:
+    # every ray either hits the floor once (stored) or escapes.
+    assert stats.rays == stats.stored + stats.escaped
     assert pm.bounce.max() == 0
+    survivors = stats.rays - stats.emitted  # bounced photons (Russian roulette with albedo 0.8)
+    assert survivors == pytest.approx(0.8 * stats.stored, rel=0.05)
 
 
 def test_path_links_point_to_the_previous_hit():

@@ -1,0 +1,278 @@
+"""Headless PDIC bake.
+
+Inside Blender::
+
+    blender --background scene.blend --python pdic_bake.py -- --output maps/ --quality PREVIEW
+
+With the bpy wheel (plain Python)::
+
+    .venv/bin/python pdic_bake.py --blend scene.blend --output maps/ --preview-png look.png
+
+Bakes the scene's light maps (all bakeable meshes, or ``--objects``), writes
+``PDIC_<object>.exr`` and ``pdic_manifest.json`` into the output folder and
+prints per-stage times, texel counts and output paths. The .blend on disk is
+never modified; ``--save-blend PATH`` saves the baked scene (UV maps, images,
+material copies) as a new file. On error the message names the culprit and
+the exit code is 1 (2 for bad arguments).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from dataclasses import replace
+
+INSIDE_BLENDER = "bpy" in sys.modules  # the Blender binary imports bpy before running scripts
+EXIT_ERROR, EXIT_USAGE = 1, 2
+
+
+class ScriptError(Exception):
+    """An error reported as ``pdic_bake: error: ...`` with exit code 1."""
+
+
+def script_args(argv: list[str]) -> list[str]:
+    if "--" in argv:
+        return argv[argv.index("--") + 1:]
+    return [] if INSIDE_BLENDER else argv[1:]
+
+
+def parse_args(args: list[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="pdic_bake", description="Bake PDIC light maps without the UI.")
+    p.add_argument("--blend", help="the .blend to bake (default: the file Blender opened)")
+    p.add_argument("--output", metavar="DIR", help="folder for images and manifest (default: the scene's "
+                                                   "PDIC output folder, //pdic_lightmaps/)")
+    p.add_argument("--objects", nargs="+", metavar="NAME", help="objects to bake (default: every bakeable mesh)")
+    size = p.add_mutually_exclusive_group()
+    size.add_argument("--resolution", type=int, metavar="N", help="light-map width and height for every object")
+    size.add_argument("--texel-density", type=float, metavar="D", help="texels per scene unit")
+    p.add_argument("--passes", default=None, help="comma-separated: direct,indirect (default: the scene's)")
+    p.add_argument("--quality", type=str.upper, choices=("PREVIEW", "FINAL", "CUSTOM"))
+    p.add_argument("--photons", type=int)
+    p.add_argument("--seed", type=int)
+    p.add_argument("--threads", type=int, help="worker threads (0 = all cores)")
+    p.add_argument("--format", choices=("EXR_HALF", "EXR_FLOAT"), help="image format")
+    p.add_argument("--save-blend", metavar="PATH", help="save the baked scene as this .blend")
+    p.add_argument("--preview-png", metavar="PATH", help="render the scene camera's view lit by the light maps")
+    p.add_argument("--preview-width", type=int, default=480, metavar="PX", help="preview width (default 480)")
+    p.add_argument("--exposure", type=float, default=0.0, help="preview exposure in stops")
+    ns = p.parse_args(args)
+    if ns.resolution is not None and ns.resolution < 8:
+        p.error(f"--resolution {ns.resolution}: must be at least 8")
+    if ns.texel_density is not None and not ns.texel_density > 0:
+        p.error(f"--texel-density {ns.texel_density}: must be positive")
+    if ns.passes is not None:
+        passes = {s.strip().lower() for s in ns.passes.split(",") if s.strip()}
+        if not passes or passes - {"direct", "indirect"}:
+            p.error(f"--passes {ns.passes!r}: use direct, indirect or direct,indirect")
+        ns.passes = passes
+    return ns
+
+
+def load_package():
+    """The PDIC package: this checkout (pdic_bootstrap) or the installed extension."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    if os.path.isfile(os.path.join(here, "pdic_bootstrap.py")) and os.path.isdir(os.path.join(here, "core")):
+        sys.path.insert(0, here)
+        import pdic_bootstrap
+
+        return pdic_bootstrap.load()
+    import importlib
+
+    import addon_utils
+    import bpy
+
+    for module in addon_utils.modules():
+        if module.__name__.endswith(".pdic") or module.__name__ == "pdic":
+            if module.__name__ not in bpy.context.preferences.addons:
+                addon_utils.enable(module.__name__, default_set=False)
+            return importlib.import_module(module.__name__)
+    raise ScriptError("PDIC is neither next to this script nor installed as a Blender extension")
+
+
+def open_blend(bpy, path: str | None) -> None:
+    if path is None:
+        return
+    if not os.path.isfile(path):
+        raise ScriptError(f"no such .blend file: {path!r}")
+    try:
+        bpy.ops.wm.open_mainfile(filepath=os.path.abspath(path), load_ui=False)
+    except RuntimeError as e:
+        raise ScriptError(f"cannot open {path!r}: {e}") from e
+
+
+def build_settings(pdic, props, args):
+    from_props = sub(pdic, "pdic_addon.properties").to_settings
+    settings = from_props(props, quality=args.quality)
+    overrides = {}
+    if args.photons is not None:
+        overrides["photons"] = args.photons
+    if args.seed is not None:
+        overrides["seed"] = args.seed
+    if args.threads is not None:
+        overrides["threads"] = args.threads
+    if args.resolution is not None:
+        overrides.update(default_resolution=args.resolution, texel_density=0.0)
+    if args.texel_density is not None:
+        overrides["texel_density"] = args.texel_density
+    if args.passes is not None:
+        overrides.update(direct="direct" in args.passes, indirect="indirect" in args.passes)
+    try:
+        return replace(settings, **overrides)
+    except ValueError as e:
+        raise ScriptError(str(e)) from e
+
+
+def output_folder(bpy, props, args) -> str:
+    if args.output:
+        return os.path.abspath(os.path.expanduser(args.output))
+    folder = props.output_folder
+    if folder.startswith("//") and not bpy.data.filepath:
+        if args.save_blend:
+            return os.path.join(os.path.dirname(os.path.abspath(args.save_blend)), folder[2:])
+        raise ScriptError("the scene is not saved, so the output folder "
+                          f"{folder!r} has no place: pass --output DIR or --save-blend PATH")
+    return folder
+
+
+def sub(pdic, name: str):
+    """Submodule ``name`` of the PDIC package, whatever the package is called (pdic, bl_ext.*.pdic)."""
+    import importlib
+
+    return importlib.import_module(f"{pdic.__name__}.{name}")
+
+
+def preview_camera(bpy, pdic, scene_core):
+    """core.preview.Camera for the scene camera, in the bake's scene-local space, and its aspect."""
+    import numpy as np
+
+    Camera = sub(pdic, "core.preview").Camera
+    cam = bpy.context.scene.camera
+    if cam is None or cam.type != "CAMERA":
+        raise ScriptError("--preview-png needs a scene camera (Scene > Camera is empty)")
+    frame = np.array([tuple(v) for v in cam.data.view_frame(scene=bpy.context.scene)])
+    m = np.array(cam.matrix_world, np.float64)
+    rotation = m[:3, :3] / np.linalg.norm(m[:3, :3], axis=0)
+    scale = np.linalg.norm(m[:3, :3], axis=0)
+    ortho = cam.data.type == "ORTHO"
+    half = np.abs(frame[:, :2]).max(axis=0)
+    if ortho:
+        half = half * scale[:2]
+    else:
+        half = half / np.abs(frame[0, 2])
+    r = bpy.context.scene.render
+    aspect = (r.resolution_y * r.pixel_aspect_y) / max(r.resolution_x * r.pixel_aspect_x, 1)
+    return Camera(m[:3, 3] - scene_core.origin_world, rotation, float(half[0]), float(half[1]), ortho), aspect
+
+
+def main(argv: list[str]) -> int:
+    try:
+        args = parse_args(script_args(argv))
+    except SystemExit as e:  # argparse printed the usage error
+        return EXIT_USAGE if e.code else 0
+    try:
+        return bake(args)
+    except ScriptError as e:
+        print(f"pdic_bake: error: {e}", file=sys.stderr)
+        return EXIT_ERROR
+    except Exception as e:  # a bug: the job rolled back; the .blend on disk was never written
+        import traceback
+
+        traceback.print_exc()
+        print(f"pdic_bake: internal error: {type(e).__name__}: {e}", file=sys.stderr)
+        return EXIT_ERROR
+
+
+def bake(args) -> int:
+    import bpy
+
+    pdic = load_package()
+    open_blend(bpy, args.blend)
+    Progress = sub(pdic, "core.executor").Progress
+    SceneError = sub(pdic, "core.scene").SceneError
+    job_module = sub(pdic, "pdic_addon.job")
+    BakeError, BakeJob = job_module.BakeError, job_module.BakeJob
+
+    if not hasattr(bpy.types.Scene, "pdic"):
+        sub(pdic, "pdic_addon").register()
+    scene = bpy.context.scene
+    props = scene.pdic
+    settings = build_settings(pdic, props, args)
+    objects = None
+    if args.objects:
+        missing = [n for n in args.objects if n not in bpy.data.objects]
+        if missing:
+            raise ScriptError(f"no object named {', '.join(map(repr, missing))} in {bpy.data.filepath or 'the scene'}")
+        objects = [bpy.data.objects[n] for n in args.objects]
+    folder = output_folder(bpy, props, args)
+    print(f"pdic_bake: {bpy.data.filepath or '(unsaved scene)'}: quality {settings.quality}, "
+          f"{settings.photons} photons, seed {settings.seed}, passes "
+          f"{'+'.join(p for p in ('direct', 'indirect') if getattr(settings, p))}")
+
+    last_stage = [None, time.perf_counter()]
+
+    def on_progress(stage, fraction, eta):
+        if stage != last_stage[0]:
+            last_stage[0] = stage
+            print(f"  .. {stage}", flush=True)
+
+    job = BakeJob(bpy.context, settings, objects=objects, output_folder=folder,
+                  image_format=args.format or props.image_format)
+    start = time.perf_counter()
+    try:
+        job.prepare()
+        print(f"  prepared {len(job.objects)} object(s) in {time.perf_counter() - start:.2f} s")
+        try:
+            job.compute(Progress(on_progress))
+        except BaseException as e:
+            job.rollback()
+            if isinstance(e, (SceneError, ValueError)):
+                raise BakeError(str(e)) from e
+            raise
+        report = job.finish()
+    except (BakeError, SceneError) as e:
+        raise ScriptError(str(e)) from e
+    total = time.perf_counter() - start
+
+    print("stage times (s):")
+    for stage, seconds in report.stats.get("seconds", {}).items():
+        print(f"  {stage:<24s} {seconds:8.3f}")
+    print(f"  {'total':<24s} {total:8.3f}")
+    print("light maps:")
+    for e in report.objects:
+        where = os.path.join(str(report.output.directory), e["image"]) if e["image"] else "(packed)"
+        print(f"  {e['name']:<24s} {e['width']}x{e['height']} texels, {e['texels']} covered -> {where}")
+    for w in report.warnings:
+        print(f"warning: {w}")
+    if report.manifest_path is not None:
+        print(f"manifest: {report.manifest_path}")
+
+    if args.preview_png:
+        preview = sub(pdic, "core.preview")
+        start = time.perf_counter()
+        camera, aspect = preview_camera(bpy, pdic, job.extraction.scene)
+        width = max(int(args.preview_width), 8)
+        height = max(int(round(width * aspect)), 8)
+        radiance = preview.render_preview(job.extraction.scene, job.result.lightmaps, camera, width, height)
+        path = os.path.abspath(args.preview_png)
+        try:
+            preview.write_png(path, preview.tone_map(radiance, args.exposure))
+        except OSError as e:
+            raise ScriptError(f"cannot write preview {path!r}: {e.strerror}") from e
+        print(f"preview: {path} ({width}x{height}, {time.perf_counter() - start:.2f} s)")
+
+    if args.save_blend:
+        path = os.path.abspath(args.save_blend)
+        try:
+            bpy.ops.wm.save_as_mainfile(filepath=path, copy=True)
+        except RuntimeError as e:
+            raise ScriptError(f"cannot save {path!r}: {e}") from e
+        print(f"saved: {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    code = main(sys.argv)
+    sys.stdout.flush()
+    if code or not INSIDE_BLENDER:
+        sys.exit(code)

@@ -1,0 +1,138 @@
+"""pdic_bake.py in a subprocess (bpy wheel): outputs, manifest, exit codes, the .blend left untouched."""
+from __future__ import annotations
+
+import hashlib
+import struct
+import subprocess
+import sys
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pdic.core import manifest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "pdic_bake.py"
+FAST = ["--quality", "CUSTOM", "--photons", "4000", "--resolution", "32", "--threads", "1"]
+
+
+def run(*args, timeout=240):
+    return subprocess.run([sys.executable, str(SCRIPT), *map(str, args)], cwd=ROOT, capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@pytest.fixture
+def scene_blend(blender, tmp_path):
+    """A saved floor + box + point light + camera scene; returns a maker (light on/off)."""
+
+    def make(light=True, name="scene.blend"):
+        bpy = blender
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.mesh.primitive_plane_add(size=6)
+        bpy.context.object.name = "Floor"
+        floor_mat = bpy.data.materials.new("FloorMat")
+        bpy.context.object.data.materials.append(floor_mat)
+        bpy.ops.mesh.primitive_cube_add(size=1, location=(0, 0, 0.5))
+        bpy.context.object.name = "Box"
+        if light:
+            bpy.ops.object.light_add(type="POINT", location=(0, 0, 3))
+            bpy.context.object.data.energy = 300.0
+        bpy.ops.object.camera_add(location=(0, -6, 4), rotation=(0.9, 0, 0))
+        bpy.context.scene.camera = bpy.context.object
+        path = tmp_path / name
+        bpy.ops.wm.save_as_mainfile(filepath=str(path))
+        return path
+
+    return make
+
+
+def read_png(path: Path) -> np.ndarray:
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    w, h = struct.unpack(">II", data[16:24])
+    pos, idat = 8, b""
+    while pos < len(data):
+        length, kind = struct.unpack(">I4s", data[pos:pos + 8])
+        if kind == b"IDAT":
+            idat += data[pos + 8:pos + 8 + length]
+        pos += 12 + length
+    raw = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(h, 1 + 3 * w)
+    assert (raw[:, 0] == 0).all()  # filter type None, as written
+    return raw[:, 1:].reshape(h, w, 3)
+
+
+def test_headless_bake_writes_images_manifest_and_preview(scene_blend, tmp_path):
+    blend = scene_blend()
+    before = digest(blend)
+    out = tmp_path / "maps"
+    png = tmp_path / "look.png"
+    r = run("--blend", blend, "--output", out, "--preview-png", png, "--preview-width", "96", *FAST)
+    assert r.returncode == 0, r.stderr
+    assert digest(blend) == before  # the .blend on disk is untouched
+    doc = manifest.read_manifest(out)
+    entries = {e["name"]: e for e in doc["objects"]}
+    assert set(entries) == {"Floor", "Box"}
+    for name, e in entries.items():
+        assert e["image"] == f"PDIC_{name}.exr" and (out / e["image"]).is_file()
+        assert e["uv_map"] == "PDIC_Lightmap" and (e["width"], e["height"]) == (32, 32)
+        assert 0 < e["texels"] <= 32 * 32
+    assert doc["settings"]["photons"] == 4000 and doc["settings"]["quality"] == "CUSTOM"
+    assert doc["stats"]["seconds_total"] > 0 and "addon_unwrap" in doc["stats"]["seconds"]
+    # the report names stages, texel counts and output paths
+    assert "stage times" in r.stdout and "32x32 texels" in r.stdout and str(out / "PDIC_Floor.exr") in r.stdout
+    # preview: the lit floor under the lamp is brighter than the unlit sky corner
+    image = read_png(png)
+    assert image.shape == (54, 96, 3)
+    assert image[40, 48].mean() > image[0, 0].mean() + 20
+
+
+def test_save_blend_keeps_light_maps_linked_to_uv_map(scene_blend, tmp_path, blender):
+    blend = scene_blend()
+    saved = tmp_path / "baked.blend"
+    r = run("--blend", blend, "--save-blend", saved, "--objects", "Floor", *FAST)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "pdic_lightmaps" / "PDIC_Floor.exr").is_file()  # default //pdic_lightmaps/
+    blender.ops.wm.open_mainfile(filepath=str(saved))
+    floor = blender.data.objects["Floor"]
+    assert "PDIC_Lightmap" in floor.data.uv_layers and "PDIC_Box" not in blender.data.images
+    image = blender.data.images["PDIC_Floor"]
+    assert image.filepath == "//pdic_lightmaps/PDIC_Floor.exr" and image.has_data
+    assert floor.material_slots[0].link == "OBJECT" and floor.material_slots[0].material.name == "FloorMat.PDIC.Floor"
+
+
+def test_scene_without_light_exits_nonzero_and_leaves_no_output(scene_blend, tmp_path):
+    blend = scene_blend(light=False)
+    before = digest(blend)
+    r = run("--blend", blend, "--output", tmp_path / "maps", *FAST)
+    assert r.returncode == 1
+    assert "pdic_bake: error:" in r.stderr and "emits light" in r.stderr
+    assert digest(blend) == before and not (tmp_path / "maps").exists()
+
+
+def test_readonly_output_exits_nonzero_naming_the_folder(scene_blend, tmp_path):
+    blend = scene_blend()
+    before = digest(blend)
+    r = run("--blend", blend, "--output", "/proc/pdic_maps", *FAST)
+    assert r.returncode == 1 and "/proc/pdic_maps" in r.stderr
+    assert digest(blend) == before
+
+
+def test_unsaved_scene_needs_an_output_folder():
+    r = run(*FAST)  # no --blend: the bpy wheel's unsaved startup scene
+    assert r.returncode == 1 and "not saved" in r.stderr and "--output" in r.stderr
+
+
+def test_bad_input_names_the_culprit(scene_blend, tmp_path):
+    blend = scene_blend()
+    r = run("--blend", blend, "--objects", "Nope", "--output", tmp_path / "o", *FAST)
+    assert r.returncode == 1 and "'Nope'" in r.stderr
+    r = run("--blend", tmp_path / "missing.blend", *FAST)
+    assert r.returncode == 1 and "missing.blend" in r.stderr
+    r = run("--blend", blend, "--passes", "diract", *FAST)
+    assert r.returncode == 2 and "diract" in r.stderr
