@@ -18,7 +18,7 @@ import numpy as np
 
 from . import texels as texel_stage
 from .dilate import dilate
-from .direct import direct_irradiance
+from .direct import DirectResult, direct_irradiance
 from .executor import Executor, Progress, default_workers
 from .interpolation import CacheLookup
 from .irradiance_cache import (CacheParameters, IrradianceCache, PhotonDensity, generate_irradiance_cache,
@@ -99,7 +99,7 @@ def _bake(scene: Scene, settings: BakeSettings, progress: Progress, executor: Ex
             E_direct, counters = shade_direct(scene, caster, points.p, points.n_shading, points.n_geometric,
                                               settings.direct_samples, settings.seed, _STREAM_DIRECT,
                                               executor, progress)
-        stats.add(**{f"direct_{k}": v for k, v in counters.items()})
+        stats.add(**counters)
 
     E_indirect = np.zeros((len(points), 3))
     cache = photon_map = None
@@ -142,14 +142,12 @@ def shade_direct(scene: Scene, caster: RayCaster, p: np.ndarray, n_shading: np.n
         progress.update(done[0] / len(chunks))
         return out
 
-    results = executor.map(run, list(enumerate(chunks)))
-    E = np.concatenate([r.E for r in results]) if results else np.zeros((0, 3))
-    counters: dict = {}
-    for r in results:
-        for key, value in r.counters.items():
-            counters[key] = counters.get(key, 0) + value
-    caster.rays_cast += sum(counters.get(k, 0) for k in counters if k.startswith("shadow_rays"))
-    return E, counters
+    merged = DirectResult.concatenate(executor.map(run, list(enumerate(chunks))))
+    counters = {f"shadow_rays_{k}": v for k, v in merged.shadow_rays.items()}
+    counters["shadow_rays"] = sum(merged.shadow_rays.values())
+    counters["shadow_rays_skipped_points"] = sum(merged.skipped.values())
+    caster.rays_cast += counters["shadow_rays"]
+    return merged.E, counters
 
 
 def cache_parameters(scene: Scene, rasters, settings: BakeSettings) -> CacheParameters:

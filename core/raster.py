@@ -100,8 +100,9 @@ def rasterize(uv: np.ndarray, width: int, height: int, samples_per_axis: int = 2
 
     Notes
     -----
-    Measured on the reference machine (2 cores, shared): 65k triangles of an
-    unwrapped grid into 1024x1024 in ~2 s, into 2048x2048 in ~7 s (see report).
+    Measured on the reference machine (2 cores, shared with other jobs), 65k
+    triangles of an unwrapped height field, 2x2 samples: 1024x1024 in 2.3 s
+    (2.1 M samples), 2048x2048 in 13 s (8.3 M samples).
     """
     uv = np.asarray(uv)
     if uv.ndim != 3 or uv.shape[1:] != (3, 2):
@@ -311,6 +312,8 @@ def _clipped_centroids(p_texel, width, height, has_sample):
     tri = np.concatenate(tris)
     area = np.concatenate(areas)
     centroid = np.concatenate(centroids)
+    if len(texel) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
     order = np.lexsort((tri, -area, texel))  # largest overlap first, then lowest index
     first = order[np.r_[True, texel[order][1:] != texel[order][:-1]]]
     texel, tri, centroid = texel[first], tri[first], centroid[first]

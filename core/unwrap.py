@@ -289,7 +289,9 @@ def _join_split_polygons(p, tri, poly, valid, index, xref, uv_texel, chart_of_ve
     If an unfolded triangle then overlaps another triangle (checked by
     rasterising at 8x8 points per texel), the whole polygon is detached as an
     island of its own instead. Pass 2 then repacks, so grown charts and new
-    islands cannot overlap other charts.
+    islands cannot overlap other charts. Known limit: overlaps thinner than
+    1/8 texel can slip through (seen on 2 of 3200 triangles of a quad grid with
+    random heights; none on smooth surfaces).
 
     Returns (index, xref, uv_texel, chart_of_vertex, polygons_fixed).
     """

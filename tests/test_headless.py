@@ -102,7 +102,7 @@ def test_save_blend_keeps_light_maps_linked_to_uv_map(scene_blend, tmp_path, ble
     floor = blender.data.objects["Floor"]
     assert "PDIC_Lightmap" in floor.data.uv_layers and "PDIC_Box" not in blender.data.images
     image = blender.data.images["PDIC_Floor"]
-    assert image.filepath == "//pdic_lightmaps/PDIC_Floor.exr" and image.has_data
+    assert image.filepath == "//pdic_lightmaps/PDIC_Floor.exr" and len(image.pixels) == 32 * 32 * 4
     assert floor.material_slots[0].link == "OBJECT" and floor.material_slots[0].material.name == "FloorMat.PDIC.Floor"
 
 

@@ -376,3 +376,30 @@ def test_manifest_rejects_non_finite_numbers(tmp_path):
     assert list(doc) == ["schema_version", "generator", "units", "objects", "settings", "stats", "warnings"]
     assert list(doc["stats"]) == ["a", "b"] and doc["stats"]["b"] == 1.5
     assert doc["schema_version"] == manifest.SCHEMA_VERSION
+
+
+def test_invoke_in_background_bakes_synchronously(blender, registered, tmp_path):
+    build_scene(blender)
+    save(blender, tmp_path)
+    assert blender.ops.pdic.bake("INVOKE_DEFAULT") == {"FINISHED"}
+    assert "PDIC_Floor" in blender.data.images
+
+
+def test_linked_library_objects_are_skipped_with_a_message(blender, registered, tmp_path):
+    blender.ops.mesh.primitive_cube_add(size=1, location=(3, 0, 0.5))
+    blender.context.object.name = "LibBox"
+    library = tmp_path / "library.blend"
+    blender.ops.wm.save_as_mainfile(filepath=str(library))
+    blender.ops.wm.read_factory_settings(use_empty=True)
+    build_scene(blender)
+    with blender.data.libraries.load(str(library), link=True) as (src, dst):
+        dst.objects = ["LibBox"]
+    linked = dst.objects[0]
+    blender.context.scene.collection.objects.link(linked)
+    save(blender, tmp_path)
+    uv_before = [l.name for l in linked.data.uv_layers]
+    j = job_module.BakeJob(blender.context, _settings(blender))
+    report = j.run()
+    assert "LibBox" not in {e["name"] for e in report.objects}
+    assert any("LibBox" in w and "library" in w for w in report.warnings)
+    assert [l.name for l in linked.data.uv_layers] == uv_before

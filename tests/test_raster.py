@@ -1,0 +1,112 @@
+"""Conservative texel rasterisation: closed-form coverage, sample placement, weights."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pdic.core.raster import overlapping, rasterize
+
+HALF = np.array([[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]], np.float32)  # lower-left half of the square
+SQUARE = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], np.float32)  # diagonal shared
+
+
+def sample_positions(s, uv):
+    return s.uv_texel(uv)
+
+
+def test_half_square_triangle_covers_closed_form_texel_count():
+    s = rasterize(HALF, 8, 8, samples_per_axis=2)
+    x, y = np.meshgrid(np.arange(8), np.arange(8))
+    assert np.array_equal(s.coverage, x + y <= 7)  # 36 texels touch the open triangle
+    # grid points ((i+.5)/16, (j+.5)/16) with i + j <= 15 (on the diagonal counts): 136 of them
+    assert (~s.conservative).sum() == 136
+    assert s.conservative.sum() == 0
+    assert np.array_equal(s.centre_inside, x + y <= 7)
+
+
+def test_barycentrics_reproduce_sub_sample_positions():
+    s = rasterize(HALF, 8, 8, samples_per_axis=2)
+    p = sample_positions(s, HALF)
+    grid = (p * 2 - 0.5)  # sub-sample grid coordinates must be integers
+    assert np.allclose(grid, np.round(grid), atol=1e-9)
+    tx, ty = s.texel % 8, s.texel // 8
+    assert np.all((p[:, 0] >= tx) & (p[:, 0] <= tx + 1) & (p[:, 1] >= ty) & (p[:, 1] <= ty + 1))
+
+
+def test_row_zero_is_the_bottom_of_the_uv_square():
+    top = np.array([[[0.0, 0.9], [1.0, 0.9], [0.5, 1.0]]], np.float32)
+    s = rasterize(top, 4, 4)
+    assert s.coverage[3].any() and not s.coverage[:3].any()
+    assert np.all(s.texel // 4 == 3)
+
+
+def test_shared_edge_sub_samples_are_counted_once():
+    # sub-samples at ((i+.5)/16, (i+.5)/16) lie exactly on the shared diagonal
+    s = rasterize(SQUARE, 8, 8, samples_per_axis=2)
+    assert s.count == 8 * 8 * 4
+    assert np.all(np.bincount(s.texel, minlength=64) == 4)
+    p = sample_positions(s, SQUARE)
+    keys = np.round(p * 2 - 0.5).astype(int)
+    assert len(np.unique(keys[:, 1] * 16 + keys[:, 0])) == s.count
+
+
+def test_thin_sliver_covers_every_texel_it_crosses(rng):
+    sliver = np.array([[[0.1, 0.1], [0.9, 0.13], [0.9, 0.1305]]], np.float32)
+    s = rasterize(sliver, 32, 32, samples_per_axis=2)
+    # reference: texels hit by dense random points of the sliver
+    b = rng.dirichlet([1, 1, 1], 200_000)
+    pts = b @ sliver[0].astype(np.float64) * 32
+    ref = np.zeros((32, 32), bool)
+    ref[np.floor(pts[:, 1]).astype(int), np.floor(pts[:, 0]).astype(int)] = True
+    assert ref.sum() > 20
+    assert np.all(s.coverage[ref])
+    assert s.conservative.any()
+    assert np.all(s.barycentric >= 0)
+
+
+def test_no_sample_lies_outside_its_triangle_or_texel(rng):
+    uv = rng.random((300, 3, 2)).astype(np.float32) * 0.2 + rng.random((300, 1, 2)).astype(np.float32) * 0.8
+    s = rasterize(uv, 37, 29, samples_per_axis=3)
+    assert np.all(s.barycentric >= 0) and np.allclose(s.barycentric.sum(1), 1.0)
+    p = s.uv_texel(uv)
+    tx, ty = s.texel % 37, s.texel // 37
+    eps = 1e-6
+    assert np.all((p[:, 0] >= tx - eps) & (p[:, 0] <= tx + 1 + eps) & (p[:, 1] >= ty - eps) & (p[:, 1] <= ty + 1 + eps))
+
+
+def test_texel_weights_sum_to_one(rng):
+    uv = rng.random((200, 3, 2)).astype(np.float32)
+    s = rasterize(uv, 16, 16, samples_per_axis=2)
+    total = np.bincount(s.texel, weights=s.weight, minlength=256).reshape(16, 16)
+    assert np.allclose(total[s.coverage], 1.0, atol=1e-6)
+    assert np.all(total[~s.coverage] == 0)
+
+
+def test_each_sub_sample_belongs_to_one_triangle_where_charts_overlap():
+    s = rasterize(np.concatenate([SQUARE, SQUARE]), 4, 4, samples_per_axis=2)
+    assert s.count == 4 * 4 * 4
+
+
+def test_centre_mask_is_a_subset_of_coverage(rng):
+    uv = rng.random((100, 3, 2)).astype(np.float32)
+    s = rasterize(uv, 24, 24)
+    assert np.all(s.coverage[s.centre_inside])
+
+
+def test_degenerate_uv_triangle_gives_no_samples():
+    point = np.array([[[0.5, 0.5], [0.5, 0.5], [0.5, 0.5]], [[0.1, 0.1], [0.2, 0.2], [0.3, 0.3]]], np.float32)
+    s = rasterize(point, 8, 8)
+    assert s.count == 0 and not s.coverage.any()
+
+
+def test_non_finite_uv_is_rejected():
+    bad = HALF.copy()
+    bad[0, 1, 0] = np.nan
+    with pytest.raises(ValueError, match="non-finite"):
+        rasterize(bad, 8, 8)
+
+
+def test_overlapping_flags_overlaps_but_not_shared_edges():
+    assert not overlapping(SQUARE, 16, 16).any()
+    shifted = SQUARE[:1] + np.float32(0.2)  # lower-right half moved along the diagonal
+    assert overlapping(np.concatenate([SQUARE, shifted]), 16, 16).tolist() == [True, False, True]

@@ -1,0 +1,149 @@
+"""Light-map unwrapping: resolution choice, chart layout, polygon corners, cache."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pdic.core.raster import overlapping, rasterize
+from pdic.core.unwrap import choose_resolution, loop_uvs, unwrap
+
+
+def quad_grid(n, height_fn):
+    """n x n quads on the unit square with z = height_fn(x, y).
+
+    Returns positions (V, 3), triangles (2n^2, 3), triangle_polygon (2n^2,),
+    triangle_loops (2n^2, 3) with loops 4q..4q+3 = corners a, b, c, d of quad q.
+    """
+    xs = np.linspace(0.0, 1.0, n + 1)
+    x, y = np.meshgrid(xs, xs)
+    positions = np.stack([x, y, height_fn(x, y)], -1).reshape(-1, 3)
+    i = (np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]).reshape(-1)
+    a, b, c, d = i, i + 1, i + n + 2, i + n + 1
+    triangles = np.concatenate([np.stack([a, b, c], -1), np.stack([a, c, d], -1)])
+    q = np.arange(n * n)
+    polygon = np.concatenate([q, q])
+    loops = np.concatenate([np.stack([4 * q, 4 * q + 1, 4 * q + 2], -1), np.stack([4 * q, 4 * q + 2, 4 * q + 3], -1)])
+    return positions, triangles, polygon, loops
+
+
+def wavy(x, y):
+    return 0.2 * np.sin(8 * x) * np.cos(7 * y)
+
+
+def chart_coverages_are_disjoint(result, resolution):
+    owner = np.zeros((resolution, resolution), int)
+    for c in np.unique(result.chart[result.chart >= 0]):
+        s = rasterize(result.uv[result.chart == c], resolution, resolution)
+        owner += s.coverage
+    return owner.max() <= 1
+
+
+# --------------------------------------------------------------------------- resolution
+def test_zero_density_uses_default_resolution():
+    assert choose_resolution(123.0, 0.0, 256, 16, 4096) == 256
+
+
+def test_density_resolution_is_rounded_up_to_multiple_of_four_and_clamped():
+    assert choose_resolution(100.0, 10.0, 256, 16, 4096) == 100  # sqrt(100) * 10
+    assert choose_resolution(101.0, 10.0, 256, 16, 4096) == 104  # 100.5 -> 101 -> 104
+    assert choose_resolution(0.01, 10.0, 256, 16, 4096) == 16
+    assert choose_resolution(1e6, 64.0, 256, 16, 4096) == 4096
+
+
+# --------------------------------------------------------------------------- layout
+def test_unwrap_fits_requested_resolution_without_chart_overlap():
+    p, t, _, _ = quad_grid(24, wavy)
+    r = unwrap(p, t, 128, 2)
+    assert r.uv.shape == (len(t), 3, 2) and r.uv.dtype == np.float32
+    assert r.uv.min() >= 0.0 and r.uv.max() <= 1.0
+    assert r.chart_count >= 1 and 0.2 < r.utilization <= 1.0
+    assert chart_coverages_are_disjoint(r, 128)  # padding keeps charts' texels apart
+    assert not overlapping(r.uv, 512, 512).any()
+
+
+def test_flat_square_keeps_its_proportions():
+    p, t, _, _ = quad_grid(4, lambda x, y: 0 * x)
+    r = unwrap(p, t, 64, 2)
+    extent = r.uv.reshape(-1, 2).max(0) - r.uv.reshape(-1, 2).min(0)
+    assert r.chart_count == 1
+    assert extent[0] == pytest.approx(extent[1], rel=0.02)  # square stays square
+    assert 60 / 64 - 0.05 < extent[0] <= 1.0  # and fills the map up to the padding
+
+
+def test_degenerate_triangles_get_finite_uvs_inside_the_map():
+    p, t, poly, _ = quad_grid(4, lambda x, y: 0 * x)
+    extra = np.array([[0, 0, 1], [0, 1, 2], [5, 5, 5]])  # repeated index, collinear, a point
+    r = unwrap(p, np.concatenate([t, extra]), 64, 2, triangle_polygon=np.concatenate([poly, [0, 0, 99]]))
+    assert np.isfinite(r.uv).all() and r.uv.min() >= 0 and r.uv.max() <= 1
+    assert np.all(r.chart[-3:] == -1) and np.all(r.chart[:-3] >= 0)
+    # corners of a degenerate triangle reuse the UVs their vertices have elsewhere
+    uv_of_vertex0 = r.uv[:len(t)][t == 0][0]
+    assert np.allclose(r.uv[-3, 0], uv_of_vertex0)
+
+
+def test_non_finite_positions_are_rejected():
+    p, t, _, _ = quad_grid(2, lambda x, y: 0 * x)
+    p[3, 2] = np.inf
+    with pytest.raises(ValueError, match="non-finite"):
+        unwrap(p, t, 64, 2)
+
+
+# --------------------------------------------------------------------------- polygon corners
+def test_planar_quads_are_never_split_across_charts():
+    p, t, _, loops = quad_grid(20, lambda x, y: 0 * x)
+    r = unwrap(p, t, 128, 2)
+    _, conflicts = loop_uvs(r.uv, loops, loops.max() + 1)
+    assert conflicts == 0
+
+
+def test_split_non_planar_quads_are_rejoined_one_uv_per_loop():
+    p, t, poly, loops = quad_grid(40, wavy)
+    plain = unwrap(p, t, 256, 2)
+    _, conflicts_plain = loop_uvs(plain.uv, loops, loops.max() + 1)
+    assert conflicts_plain > 0  # xatlas does split non-planar quads (62 of 1600 here)
+
+    r = unwrap(p, t, 256, 2, triangle_polygon=poly)
+    uv_loop, conflicts = loop_uvs(r.uv, loops, loops.max() + 1)
+    assert conflicts == 0 and r.polygons_fixed > 0
+    assert np.allclose(uv_loop[loops], r.uv, atol=1e-6)
+    assert r.uv.min() >= 0 and r.uv.max() <= 1
+    assert chart_coverages_are_disjoint(r, 256)
+    assert not overlapping(r.uv, 256, 256, 4).any()
+
+
+def test_loop_uvs_counts_loops_with_conflicting_uvs():
+    uv = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0.5, 1]], [[0.2, 0], [0.7, 0.7], [0, 1]]], np.float32)
+    loops = np.array([[0, 1, 2], [0, 2, 3], [0, 2, 4]])
+    uv_loop, conflicts = loop_uvs(uv, loops, 6)
+    assert conflicts == 2  # loop 0 and loop 2 differ in the third triangle
+    assert np.allclose(uv_loop[:5], [[0, 0], [1, 0], [1, 1], [0.5, 1], [0, 1]]) and np.all(uv_loop[5] == 0)
+
+
+# --------------------------------------------------------------------------- cache
+def test_cache_hit_returns_identical_uvs(tmp_path):
+    p, t, poly, _ = quad_grid(12, wavy)
+    cold = unwrap(p, t, 64, 2, tmp_path, poly)
+    warm = unwrap(p, t, 64, 2, tmp_path, poly)
+    assert not cold.from_cache and warm.from_cache
+    assert np.array_equal(cold.uv, warm.uv) and np.array_equal(cold.chart, warm.chart)
+    assert warm.chart_count == cold.chart_count
+    assert len(list(tmp_path.glob("unwrap-*.npz"))) == 1
+
+
+def test_cache_key_changes_with_geometry_and_padding(tmp_path):
+    p, t, _, _ = quad_grid(6, wavy)
+    unwrap(p, t, 64, 2, tmp_path)
+    assert not unwrap(p, t, 64, 3, tmp_path).from_cache
+    moved = p.copy()
+    moved[0, 2] += 1e-3
+    assert not unwrap(moved, t, 64, 2, tmp_path).from_cache
+    assert len(list(tmp_path.glob("unwrap-*.npz"))) == 3
+
+
+def test_corrupt_cache_file_is_recomputed(tmp_path):
+    p, t, _, _ = quad_grid(6, wavy)
+    first = unwrap(p, t, 64, 2, tmp_path)
+    (path,) = tmp_path.glob("unwrap-*.npz")
+    path.write_bytes(b"not a zip")
+    again = unwrap(p, t, 64, 2, tmp_path)
+    assert not again.from_cache and np.array_equal(again.uv, first.uv)
