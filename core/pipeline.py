@@ -28,6 +28,7 @@ from .rays import RayCaster
 from .scene import Scene, SceneError
 from .settings import BakeSettings
 from .stats import BakeStats
+from .validity import inside_geometry
 
 TEXEL_CHUNK = 32_768
 """Texel samples per shading chunk (about 0.05-0.5 s of work: cancel stays responsive)."""
@@ -37,7 +38,7 @@ HOLE_ROUNDS = 3
 """Rounds of hole records (section 3.4) before falling back to the nearest record."""
 
 # Stream ids for per-chunk random generators.
-_STREAM_DIRECT, _STREAM_PHOTON_DIRECT = 10, 11
+_STREAM_DIRECT, _STREAM_PHOTON_DIRECT, _STREAM_VALIDITY = 10, 11, 12
 
 
 @dataclass
@@ -104,8 +105,15 @@ def _bake(scene: Scene, settings: BakeSettings, progress: Progress, executor: Ex
     E_indirect = np.zeros((len(points), 3))
     cache = photon_map = None
     if settings.indirect and settings.photons > 0:
-        E_indirect, cache, photon_map = indirect_light(scene, caster, points, rasters, settings, executor,
-                                                       progress, stats)
+        progress.begin("Texel validity")
+        with stats.stage("validity"):
+            inside, rays = inside_geometry(caster, scene.geometry.face_normals(), points.p, points.n_geometric,
+                                           np.random.default_rng([settings.seed, _STREAM_VALIDITY]))
+        stats.set(texel_samples_inside_geometry=int(inside.sum()), validity_rays=rays)
+        valid = np.flatnonzero(~inside)
+        E_valid, cache, photon_map = indirect_light(scene, caster, points.take(valid), rasters, settings,
+                                                    executor, progress, stats)
+        E_indirect[valid] = E_valid
 
     progress.begin("Writing light maps")
     result = BakeResult(cache=cache, photons=photon_map)
@@ -166,12 +174,15 @@ def cache_parameters(scene: Scene, rasters, settings: BakeSettings) -> CachePara
 def indirect_light(scene: Scene, caster: RayCaster, points, rasters, settings: BakeSettings,
                    executor: Executor, progress: Progress, stats: BakeStats):
     """Passes 1-3 and the cache lookup at texels; returns (E_indirect (n, 3), cache, photon map)."""
+    # Final gathering adds the last bounce itself (the hits' irradiance already holds the photons'
+    # bounces), so refined bakes trace one bounce fewer and both qualities count max_bounces alike.
+    photon_bounces = settings.max_bounces - 1 if settings.refine else settings.max_bounces
     progress.begin("Pass 1: tracing photons")
     with stats.stage("photons"):
-        photon_map, trace = trace_photons(scene, caster, settings.photons, settings.max_bounces, settings.seed,
+        photon_map, trace = trace_photons(scene, caster, settings.photons, photon_bounces, settings.seed,
                                           executor, progress)
     stats.set(photons_emitted=trace.emitted, photons_stored=trace.stored, photon_rays=trace.rays,
-              photons_escaped=trace.escaped, max_bounces=settings.max_bounces,
+              photons_escaped=trace.escaped, max_bounces=settings.max_bounces, photon_bounces=photon_bounces,
               photon_bytes=photon_map.nbytes, bytes_per_photon=PhotonMap.BYTES_PER_PHOTON)
     if len(photon_map) == 0:
         return np.zeros((len(points), 3)), IrradianceCache(), photon_map

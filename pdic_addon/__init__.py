@@ -1,14 +1,14 @@
 """Everything of PDIC that touches bpy; registration stays thin and symmetric.
 
-Each module listed in :data:`MODULES` exports ``classes`` and its own
-``register()``/``unregister()``; panels, the cache overlay and preferences
-join the list as they are written.
+Each module listed in :data:`MODULE_NAMES` has its own symmetric
+``register()``/``unregister()`` (most also export ``classes``); they are
+registered in this order and unregistered in reverse.
 """
 from __future__ import annotations
 
 import importlib
 
-MODULE_NAMES = ("properties", "operators")
+MODULE_NAMES = ("preferences", "properties", "operators", "panels", "overlay")
 
 
 def _modules():

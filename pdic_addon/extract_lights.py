@@ -4,7 +4,8 @@ Unit conversions (DEVELOPERS.md, "Units"); all in world coordinates here, the
 caller recentres positions with the scene's origin:
 
 =========  ======================================================================
-point      power = energy * 2**exposure * colour (W); radius = shadow_soft_size
+point      power = energy * 2**exposure * colour (W); radius = shadow_soft_size;
+           ``use_soft_falloff`` off: a uniform sphere (:class:`SphereLight`)
 spot       as point; direction = -Z of matrix_world; half_angle = spot_size / 2;
            blend = spot_blend
 sun        irradiance = strength * 2**exposure * colour (W/m^2); direction =
@@ -15,17 +16,64 @@ area       size (and size_y for RECTANGLE/ELLIPSE) times the object's scale
 world      Background node into the World Output: radiance = Color * Strength
 =========  ======================================================================
 
+``Light.normalize`` off (measured against Cycles 5.0 bakes, tests/test_direct_vs_cycles.py):
+Cycles no longer divides the power by the emitter's size, so
+
+===========  ====================================================================
+point, spot  radius r > 0: power x 4 pi r^2 (radiance P / pi); radius 0: power x 4
+sun          angle a > 0: strength x pi sin^2(a / 2) (radiance = strength);
+             angle 0: unchanged
+area         radiance = P / pi (the area is taken as 1 m^2)
+===========  ====================================================================
+
 ``colour`` includes the blackbody ``temperature_color`` when ``use_temperature``.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..core.scene import AreaLight, PointLight, SceneError, SpotLight, SunLight, World
 from .extract_materials import USE_NODES_FLAG, _linked_node, _output_node
+
+
+@dataclass(frozen=True)
+class SphereLight(PointLight):
+    """A point light with Blender's ``use_soft_falloff`` off: a uniform sphere (core/direct.py).
+
+    Stop-gap until :class:`core.scene.PointLight` has a ``soft_falloff`` field; core/direct.py
+    reads ``getattr(light, "soft_falloff", True)``.
+    """
+
+    soft_falloff: bool = False
+
+
+@dataclass(frozen=True)
+class SphereSpotLight(SpotLight):
+    """A spot light with ``use_soft_falloff`` off (see :class:`SphereLight`)."""
+
+    soft_falloff: bool = False
+
+
+def normalize_factor(light) -> float:
+    """Power multiplier of a point, spot or sun light with ``normalize`` off (1 when on).
+
+    Measured against Cycles 5.0 (Diffuse Direct bakes, normalize off / on):
+    point and spot radius r > 0: 4 pi r^2 (r = 0.1, 0.25, 0.5, 1 m); radius 0: 4;
+    sun with angle a > 0: pi sin^2(a / 2) (a = 0.1, 0.3 rad); sun with angle 0: 1.
+    Area lights are handled where their radiance is set.
+    """
+    if getattr(light, "normalize", True):
+        return 1.0
+    if light.type in ("POINT", "SPOT"):
+        r = float(light.shadow_soft_size)
+        return 4.0 * math.pi * r * r if r > 0 else 4.0
+    if light.type == "SUN":
+        half = 0.5 * float(light.angle)
+        return math.pi * math.sin(half) ** 2 if half > 0 else 1.0
+    return 1.0
 
 
 def _unit(v: np.ndarray, what: str) -> np.ndarray:
@@ -68,10 +116,14 @@ def extract_light(light, matrix_world: np.ndarray, name: str, warnings: list):
     if np.any(power < 0):
         warnings.append(f"light {name!r}: negative power/strength clamped to 0")
         power = np.maximum(power, 0.0)
+    power = power * normalize_factor(light)
+    sphere = light.type in ("POINT", "SPOT") and not getattr(light, "use_soft_falloff", True) \
+        and float(light.shadow_soft_size) > 0
     if light.type == "POINT":
-        return PointLight(name=name, position=position, power=power, radius=float(light.shadow_soft_size))
+        return (SphereLight if sphere else PointLight)(name=name, position=position, power=power,
+                                                       radius=float(light.shadow_soft_size))
     if light.type == "SPOT":
-        return SpotLight(
+        return (SphereSpotLight if sphere else SpotLight)(
             name=name,
             position=position,
             direction=_unit(-M[:3, 2], f"light {name!r}"),
@@ -108,12 +160,9 @@ def extract_light(light, matrix_world: np.ndarray, name: str, warnings: list):
         if area.area <= 0:
             warnings.append(f"light {name!r}: area light of zero size ignored")
             return None
-        # Light.normalize (default True): power is spread over the area, L = P / (pi A).
-        # TODO(normalize): with normalize=False Cycles does not divide by the area; we
-        # take L = P / pi (area treated as 1 m^2) until the Cycles measurement confirms it.
+        # Light.normalize (default True): power is spread over the area, L = P / (pi A);
+        # off: L = P / pi, whatever the size (measured: Cycles 5.0, sizes 0.5, 1, 2 m).
         divisor = area.area if getattr(light, "normalize", True) else 1.0
-        if not getattr(light, "normalize", True):
-            warnings.append(f"light {name!r}: 'Normalize' is off; radiance taken as power / pi (provisional)")
         return replace(area, radiance=power / (math.pi * divisor))
     warnings.append(f"light {name!r}: unsupported light type {light.type!r} ignored")
     return None

@@ -70,6 +70,18 @@ def _linked_node(socket):
     return None
 
 
+def _image_path(image) -> str:
+    """The image's file path for messages: Blender's path, plus the absolute one when it is relative."""
+    if image.source != "FILE" or not image.filepath:
+        return "packed" if image.packed_file is not None else "generated"
+    path = image.filepath
+    try:
+        absolute = bpy.path.abspath(path, library=image.library)
+    except (TypeError, ValueError):
+        absolute = path
+    return path if absolute == path else f"{path} = {absolute}"
+
+
 class MaterialTable:
     """One global, deduplicated table of materials and textures, filled while extracting.
 
@@ -202,7 +214,7 @@ class MaterialTable:
 
     def _pixels(self, image, material_name: str):
         """(H, W, 3) float32 linear pixels of ``image``, or None with a warning."""
-        where = f"image {image.name!r} ({image.filepath or 'generated'}) used by material {material_name!r}"
+        where = f"image {image.name!r} ({_image_path(image)}) used by material {material_name!r}"
         if image.source == "TILED":
             self._warn(f"{where}: UDIM tiles are not supported; using the constant colour")
             return None

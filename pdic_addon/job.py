@@ -13,7 +13,7 @@ so an error or a cancel at any point leaves the .blend as it was.
 """
 from __future__ import annotations
 
-import tempfile
+import json
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -26,7 +26,7 @@ from ..core import unwrap
 from ..core.executor import Progress
 from ..core.scene import SceneError
 from ..core.settings import BakeSettings
-from . import uvmaps, writeback
+from . import overlay, preferences, uvmaps, writeback
 from .extract import extract_scene
 
 
@@ -71,12 +71,31 @@ class Transaction:
 
 # --------------------------------------------------------------------------- helpers
 def default_cache_dir() -> Path:
-    """Where unwraps are cached: the extension's user folder, else the temp folder."""
-    package = __package__.rpartition(".")[0]
-    try:
-        return Path(bpy.utils.extension_path_user(package, path="unwrap_cache", create=True))
-    except (ValueError, RuntimeError, AttributeError):
-        return Path(tempfile.gettempdir()) / "pdic_unwrap_cache"
+    """Where unwraps are cached: ``unwrap_cache`` in the preferences' cache folder
+    (default: the extension's user folder, else the temp folder)."""
+    return preferences.cache_dir(sub="unwrap_cache")
+
+
+def records_file_for(plan: writeback.OutputPlan, scene_name: str) -> Path:
+    """Where a bake's irradiance records go: next to the manifest, or (images packed
+    into an unsaved .blend) ``records/<scene>.npz`` in the cache folder."""
+    if not plan.pack:
+        return plan.directory / overlay.RECORDS_FILENAME
+    folder = preferences.cache_dir(sub="records")
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder / (bpy.path.clean_name(scene_name) + ".npz")
+
+
+def _blender_path(path: Path | None) -> str:
+    """``path`` relative to the .blend (``//...``) when the .blend is saved and it lies beside it."""
+    if path is None:
+        return ""
+    if bpy.data.filepath:
+        try:
+            return bpy.path.relpath(str(path))
+        except ValueError:  # another drive (Windows)
+            pass
+    return str(path)
 
 
 def _object_settings(obj):
@@ -106,6 +125,12 @@ def choose_objects(view_layer, candidates) -> tuple[list, list[str], list[str]]:
     return chosen, warnings, reasons
 
 
+def _json_default(value):
+    if hasattr(value, "tolist"):  # numpy scalar or array
+        return value.tolist()
+    return str(value)
+
+
 @dataclass
 class BakeReport:
     """What a finished bake produced (also what the manifest says)."""
@@ -115,6 +140,7 @@ class BakeReport:
     stats: dict = field(default_factory=dict)
     output: writeback.OutputPlan | None = None
     manifest_path: Path | None = None
+    records_path: Path | None = None
 
 
 # --------------------------------------------------------------------------- the job
@@ -129,7 +155,7 @@ class BakeJob:
         every bakeable mesh in the view layer.
     output_folder : Blender path; default ``scene.pdic.output_folder`` or ``//pdic_lightmaps/``.
     image_format : "EXR_HALF" or "EXR_FLOAT"; default from ``scene.pdic``.
-    cache_dir : unwrap cache folder (None: :func:`default_cache_dir`).
+    cache_dir : unwrap cache folder (None: :func:`default_cache_dir`, from the add-on preferences).
     """
 
     def __init__(self, context, settings: BakeSettings, objects=None, selected_only: bool = False,
@@ -319,6 +345,8 @@ class BakeJob:
             manifest_path = plan.directory / core_manifest.FILENAME
             writeback.replace_file(manifest_path, lambda p: core_manifest.write_manifest(
                 p, entries, stats, settings, self.warnings), self.txn)
+        records_path = self._write_records(plan)
+        self._remember(stats, entries, manifest_path, records_path)
 
         # -- commit: replace the previous outputs of these objects, show the new ones
         for obj, image, copies in new_outputs:
@@ -329,7 +357,36 @@ class BakeJob:
                 copy.name = copy.name.removesuffix(".pdic_new")
         self.txn.commit()
         self.timings["finish"] = time.perf_counter() - start
-        return BakeReport(entries, list(self.warnings), stats, plan, manifest_path)
+        return BakeReport(entries, list(self.warnings), stats, plan, manifest_path, records_path)
+
+    def _write_records(self, plan) -> Path:
+        """The cache overlay's file: records p_k, n_k, E_k, R_k (zero records without indirect light)."""
+        cache = self.result.cache
+        K = len(cache) if cache is not None else 0
+        fields = (cache.p, cache.n, cache.E, cache.R) if K else (np.zeros((0, 3)),) * 3 + (np.zeros(0),)
+        path = records_file_for(plan, self.scene.name)
+        origin = self.extraction.scene.origin_world
+        writeback.replace_file(path, lambda p: overlay.save_records(p, *fields, origin, self.settings.a), self.txn)
+        return path
+
+    def _remember(self, stats: dict, entries: list, manifest_path, records_path) -> None:
+        """Store the last bake's statistics and files in ``scene.pdic`` (undone on rollback)."""
+        props = getattr(self.scene, "pdic", None)
+        if props is None:
+            return
+        summary = dict(stats, objects=[e["name"] for e in entries], quality=self.settings.quality,
+                       warnings=len(self.warnings), finished=time.strftime("%Y-%m-%d %H:%M:%S"))
+        new = {"last_stats": json.dumps(summary, sort_keys=True, default=_json_default),
+               "manifest_file": _blender_path(manifest_path), "records_file": _blender_path(records_path)}
+        old = {k: getattr(props, k) for k in new}
+
+        def undo(props=props, old=old):
+            for k, v in old.items():
+                setattr(props, k, v)
+
+        self.txn.add(undo, "restore the last bake's statistics")
+        for k, v in new.items():
+            setattr(props, k, v)
 
     # ----------------------------------------------------------------- undo
     def rollback(self) -> list[str]:

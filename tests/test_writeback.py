@@ -11,6 +11,7 @@ from pdic.core import manifest
 from pdic.pdic_addon import job as job_module
 from pdic.pdic_addon import writeback
 from pdic.pdic_addon.uvmaps import LIGHTMAP_UV
+from snapshot import snapshot
 
 RES = 32
 
@@ -95,53 +96,6 @@ def save(bpy, tmp_path):
     path = str(tmp_path / "scene.blend")
     bpy.ops.wm.save_as_mainfile(filepath=path)
     return path
-
-
-# --------------------------------------------------------------------------- snapshot
-def _value(v):
-    if hasattr(v, "__len__") and not isinstance(v, str):
-        return tuple(round(float(x), 6) for x in v)
-    if isinstance(v, float):
-        return round(v, 6)
-    return v if isinstance(v, (int, str, bool, type(None))) else str(v)
-
-
-def _tree(tree):
-    if tree is None:
-        return None
-    nodes = {}
-    for n in tree.nodes:
-        inputs = tuple((s.identifier, _value(s.default_value)) for s in n.inputs if hasattr(s, "default_value"))
-        nodes[n.name] = (n.bl_idname, inputs, getattr(n, "image", None) and n.image.name)
-    links = sorted((l.from_node.name, l.from_socket.identifier, l.to_node.name, l.to_socket.identifier)
-                   for l in tree.links)
-    return nodes, links
-
-
-def snapshot(bpy):
-    """Everything a bake could touch, as plain comparable data."""
-    s = {}
-    for kind in ("objects", "meshes", "materials", "images", "scenes", "node_groups", "texts", "cameras", "lights"):
-        s[kind + "_names"] = sorted(i.name for i in getattr(bpy.data, kind))
-    s["objects"] = {}
-    for o in bpy.data.objects:
-        slots = []
-        for slot in o.material_slots:
-            slots.append((slot.link, slot.material and slot.material.name,
-                          writeback._object_material(slot) and writeback._object_material(slot).name))
-        s["objects"][o.name] = (slots, sorted(o.keys()))
-    s["meshes"] = {}
-    for m in bpy.data.meshes:
-        uv = {l.name: np.round(np.array([d.vector[:] for d in l.uv]), 6).tobytes() for l in m.uv_layers}
-        s["meshes"][m.name] = (
-            [l.name for l in m.uv_layers], m.uv_layers.active_index,
-            [l.active_render for l in m.uv_layers], sorted(a.name for a in m.attributes),
-            [mat and mat.name for mat in m.materials], uv, m.users)
-    s["materials"] = {m.name: (_tree(m.node_tree), m.use_fake_user, sorted(m.keys()), m.users,
-                               tuple(round(c, 6) for c in m.diffuse_color)) for m in bpy.data.materials}
-    s["images"] = {i.name: (i.filepath, i.source, bool(i.packed_file), i.users, tuple(i.size))
-                   for i in bpy.data.images}
-    return s
 
 
 def bake(bpy, **kwargs):
@@ -246,7 +200,8 @@ def test_rebake_replaces_outputs_without_accumulating(blender, registered, tmp_p
         assert second[kind] == first[kind]
     assert second["objects"] == first["objects"]
     assert sorted(os.listdir(tmp_path / "pdic_lightmaps")) == sorted(
-        [f"PDIC_{o}.exr" for o in ("Floor", "Box", "BallA", "BallB", "Wedge")] + ["pdic_manifest.json"])
+        [f"PDIC_{o}.exr" for o in ("Floor", "Box", "BallA", "BallB", "Wedge")]
+        + ["pdic_manifest.json", "pdic_records.npz"])
     blender.ops.pdic.clear()
     assert snapshot(blender) == before
 
@@ -352,7 +307,8 @@ def test_failed_rebake_keeps_previous_outputs_and_files(blender, registered, tmp
     assert (tmp_path / "pdic_lightmaps" / "PDIC_Floor.exr").read_bytes() == exr
     assert (tmp_path / "pdic_lightmaps" / "pdic_manifest.json").read_text() == doc
     assert sorted(p.name for p in (tmp_path / "pdic_lightmaps").iterdir()) == sorted(
-        [f"PDIC_{o}.exr" for o in ("Floor", "Box", "BallA", "BallB", "Wedge")] + ["pdic_manifest.json"])
+        [f"PDIC_{o}.exr" for o in ("Floor", "Box", "BallA", "BallB", "Wedge")]
+        + ["pdic_manifest.json", "pdic_records.npz"])
 
 
 def test_nothing_to_bake_says_why(blender, registered, tmp_path):
