@@ -249,7 +249,7 @@ def _point_like(out, kind, light, attenuation, caster, p, n_s, n_g, samples, rng
         return
 
     u = sampling.stratified_2d(len(idx), samples, rng)
-    soft_falloff = bool(getattr(light, "soft_falloff", True))
+    soft_falloff = bool(light.soft_falloff)
     if soft_falloff:
         # Lambertian disk facing the receiver: L = P / (4 pi^2 r^2), A = pi r^2, so
         # L cos_s cos_l / d^2 / pdf_A = P cos_s cos_l / (4 pi d^2).

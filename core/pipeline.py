@@ -221,7 +221,7 @@ def interpolate_filling_holes(scene, caster, density: PhotonDensity, cache: Irra
                               params: CacheParameters, settings: BakeSettings, executor: Executor,
                               progress: Progress):
     """Equation 3 at every texel sample; samples no record covers get new records (section 3.4)."""
-    E, w = _lookup(cache, params.a, settings.gradients, points.p, points.n_shading, executor)
+    E, w = _lookup(cache, params.a, settings.gradients, points.p, points.n_shading, executor, progress)
     hole_records = 0
     for round_ in range(HOLE_ROUNDS):
         holes = np.flatnonzero(w <= 0)
@@ -239,7 +239,7 @@ def interpolate_filling_holes(scene, caster, density: PhotonDensity, cache: Irra
                                     stream=20 + round_)
         hole_records += len(new)
         cache = cache.extend(new)
-        E_h, w_h = _lookup(cache, params.a, settings.gradients, cand_p, cand_n, executor)
+        E_h, w_h = _lookup(cache, params.a, settings.gradients, cand_p, cand_n, executor, progress)
         E[holes], w[holes] = E_h, w_h
     unfilled = np.flatnonzero(w <= 0)
     if len(unfilled) and len(cache):
@@ -251,10 +251,18 @@ def interpolate_filling_holes(scene, caster, density: PhotonDensity, cache: Irra
     return E, cache, hole_records, len(unfilled)
 
 
-def _lookup(cache, a, gradients, p, n, executor: Executor):
+def _lookup(cache, a, gradients, p, n, executor: Executor, progress: Progress):
     lookup = CacheLookup(cache, a, gradients)
     chunks = [slice(s, min(s + TEXEL_CHUNK, len(p))) for s in range(0, len(p), TEXEL_CHUNK)]
-    parts = executor.map(lambda s: lookup.irradiance(p[s], n[s]), chunks)
+    done = [0]
+
+    def run(s):
+        out = lookup.irradiance(p[s], n[s])
+        done[0] += 1
+        progress.update(done[0] / len(chunks))  # also where a cancel is noticed
+        return out
+
+    parts = executor.map(run, chunks)
     if not parts:
         return np.zeros((0, 3)), np.zeros(0)
     return np.concatenate([e for e, _ in parts]), np.concatenate([w for _, w in parts])

@@ -165,6 +165,8 @@ class PointLight:
     position: np.ndarray
     power: np.ndarray
     radius: float = 0.0
+    soft_falloff: bool = True
+    """Blender's Soft Falloff: with a radius, a Lambertian disc facing the receiver (on) or a sphere (off)."""
 
 
 @dataclass(frozen=True)
@@ -183,6 +185,7 @@ class SpotLight:
     half_angle: float
     blend: float
     radius: float = 0.0
+    soft_falloff: bool = True
 
 
 @dataclass(frozen=True)

@@ -22,8 +22,8 @@ class BakeSettings:
     """Bake indirect light from the photon-driven irradiance cache."""
 
     # -- pass 1: photon map ------------------------------------------------
-    photons: int = 250_000
-    """Photons emitted (the budget), shared among lights by power. Typical 100k-4M."""
+    photons: int = 1_000_000
+    """Photons emitted (the budget), shared among lights by power. Typical 250k (Preview) - 4M."""
     max_bounces: int = 6
     """Diffuse bounces a photon may make (the paper uses 4 for Cornell, up to 9)."""
 
@@ -38,10 +38,10 @@ class BakeSettings:
     """R_max as a fraction of the scene diagonal."""
 
     # -- pass 3: refinement -------------------------------------------------
-    hemisphere_theta: int = 12
+    hemisphere_theta: int = 16
     """Stratified hemisphere: theta rows (cosine-weighted, equal-weight cells)."""
-    hemisphere_phi: int = 24
-    """Stratified hemisphere: phi columns. theta x phi = 288 cells by default."""
+    hemisphere_phi: int = 32
+    """Stratified hemisphere: phi columns. theta x phi = 512 cells by default."""
     reuse_photon_paths: bool = True
     """Fill cells with virtual rays from photon paths (the paper); False = standard final gathering."""
     gradients: bool = True

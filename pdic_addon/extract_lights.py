@@ -5,7 +5,7 @@ caller recentres positions with the scene's origin:
 
 =========  ======================================================================
 point      power = energy * 2**exposure * colour (W); radius = shadow_soft_size;
-           ``use_soft_falloff`` off: a uniform sphere (:class:`SphereLight`)
+           ``use_soft_falloff`` off: a uniform sphere (``soft_falloff=False``)
 spot       as point; direction = -Z of matrix_world; half_angle = spot_size / 2;
            blend = spot_blend
 sun        irradiance = strength * 2**exposure * colour (W/m^2); direction =
@@ -31,30 +31,12 @@ area         radiance = P / pi (the area is taken as 1 m^2)
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
 from ..core.scene import AreaLight, PointLight, SceneError, SpotLight, SunLight, World
 from .extract_materials import USE_NODES_FLAG, _linked_node, _output_node
-
-
-@dataclass(frozen=True)
-class SphereLight(PointLight):
-    """A point light with Blender's ``use_soft_falloff`` off: a uniform sphere (core/direct.py).
-
-    Stop-gap until :class:`core.scene.PointLight` has a ``soft_falloff`` field; core/direct.py
-    reads ``getattr(light, "soft_falloff", True)``.
-    """
-
-    soft_falloff: bool = False
-
-
-@dataclass(frozen=True)
-class SphereSpotLight(SpotLight):
-    """A spot light with ``use_soft_falloff`` off (see :class:`SphereLight`)."""
-
-    soft_falloff: bool = False
 
 
 def normalize_factor(light) -> float:
@@ -120,10 +102,10 @@ def extract_light(light, matrix_world: np.ndarray, name: str, warnings: list):
     sphere = light.type in ("POINT", "SPOT") and not getattr(light, "use_soft_falloff", True) \
         and float(light.shadow_soft_size) > 0
     if light.type == "POINT":
-        return (SphereLight if sphere else PointLight)(name=name, position=position, power=power,
-                                                       radius=float(light.shadow_soft_size))
+        return PointLight(name=name, position=position, power=power, radius=float(light.shadow_soft_size),
+                          soft_falloff=not sphere)
     if light.type == "SPOT":
-        return (SphereSpotLight if sphere else SpotLight)(
+        return SpotLight(
             name=name,
             position=position,
             direction=_unit(-M[:3, 2], f"light {name!r}"),
@@ -131,6 +113,7 @@ def extract_light(light, matrix_world: np.ndarray, name: str, warnings: list):
             half_angle=0.5 * float(light.spot_size),
             blend=float(light.spot_blend),
             radius=float(light.shadow_soft_size),
+            soft_falloff=not sphere,
         )
     if light.type == "SUN":
         return SunLight(

@@ -223,8 +223,17 @@ class BakeJob:
         for obj in objects:
             by_mesh.setdefault(obj.data, []).append(obj)
         triangles = {}
-        for mesh, users in by_mesh.items():
+        for mesh, users in list(by_mesh.items()):
             tris = uvmaps.mesh_triangles(mesh)
+            if not np.isfinite(tris.positions).all():
+                bad = int((~np.isfinite(tris.positions).all(axis=1)).sum())
+                raise BakeError(f"object {users[0].name!r} (mesh {mesh.name!r}): {bad} non-finite vertex "
+                                f"coordinates (NaN or inf); fix or delete those vertices")
+            if not (tris.surface_area((1.0, 1.0, 1.0)) > 0):
+                for o in users:
+                    self.warnings.append(f"{o.name!r}: mesh {mesh.name!r} has no triangle with area; not baked")
+                del by_mesh[mesh]
+                continue
             triangles[mesh] = tris
             for obj in users:
                 override = getattr(_object_settings(obj), "resolution", 0)
@@ -242,6 +251,10 @@ class BakeJob:
                                      f"all get {res}x{res} light maps")
                 for o in users:
                     self.resolutions[o.name] = (res, res)
+        objects = [o for o in objects if o.data in by_mesh]
+        if not objects:
+            raise BakeError("nothing to bake: no selected mesh has a triangle with area")
+        self.objects = objects
         self.timings["choose"] = time.perf_counter() - start
 
         # -- unwrap each mesh once (positions scaled like its first user in the world)
@@ -278,11 +291,7 @@ class BakeJob:
         finally:  # objects that are not re-baked show their light maps again at once
             targets = {o.name for o in objects}
             writeback.set_shading([o for o in showing if o.name not in targets], baked=True)
-        self.warnings += self.extraction.warnings
-        for name, count in self.extraction.degenerate_triangles.items():
-            self.warnings.append(f"{name!r}: {count} degenerate (zero-area) triangles are not baked")
-        if not self.extraction.scene.has_light():
-            raise BakeError("nothing emits light: add a light, an emissive material or a world colour")
+        self.warnings += self.extraction.warnings  # extraction names degenerate triangles and dark scenes
         self.timings["extract"] = time.perf_counter() - start
 
     @property

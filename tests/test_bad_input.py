@@ -100,12 +100,7 @@ def test_no_bakeable_mesh_names_every_skipped_object_and_changes_nothing(blender
     assert not (tmp_path / OUTPUT).exists()
 
 
-NAN_TARGET_XFAIL = pytest.mark.xfail(
-    strict=True, reason="job.py computes the resolution from the NaN surface area first; core.unwrap."
-                        "choose_resolution's ValueError does not name the object")
-
-
-@pytest.mark.parametrize("bake_broken", [pytest.param(True, id="target", marks=NAN_TARGET_XFAIL),
+@pytest.mark.parametrize("bake_broken", [pytest.param(True, id="target"),
                                          pytest.param(False, id="occluder")])
 def test_nan_vertex_fails_naming_the_object_and_changes_nothing(blender, registered, tmp_path, bake_broken):
     _floor(blender)
@@ -140,8 +135,6 @@ def test_degenerate_triangles_bake_with_a_warning_naming_object_and_count(blende
     assert snapshot(blender) == before
 
 
-@pytest.mark.xfail(strict=True, reason="core/unwrap.py divides by the zero total area (ZeroDivisionError); "
-                                       "an all-degenerate mesh should be skipped with a warning")
 def test_mesh_of_only_degenerate_triangles_is_skipped_with_a_warning(blender, registered, tmp_path):
     _floor(blender)
     _lamp(blender)

@@ -3,7 +3,6 @@
 Scenes are built by hand: a floor quad in z = 0 (normal +z) carries the
 receiving points; lights and occluders are placed above it.
 """
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -147,11 +146,9 @@ def test_soft_point_light_far_away_tends_to_point_light():
     assert np.allclose(r.E[:, 0], point_E(p, light.position, 100.0), rtol=1e-4)
 
 
-@dataclass(frozen=True)
-class SphereLight(sc.PointLight):
-    """A point light with Blender's ``use_soft_falloff`` off (not yet a field of scene.PointLight)."""
-
-    soft_falloff: bool = False
+def SphereLight(name, position, power, radius):  # noqa: N802 (reads like the light it builds)
+    """A point light with Blender's ``use_soft_falloff`` off: a uniform sphere."""
+    return sc.PointLight(name, position, power, radius=radius, soft_falloff=False)
 
 
 def test_sphere_light_above_horizon_equals_point_light():

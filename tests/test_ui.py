@@ -526,7 +526,7 @@ def test_actions_show_progress_and_cancel_while_baking(addon):
 
 
 def test_preset_summary_states_the_preset_numbers():
-    assert panels.preset_summary("FINAL") == "250,000 photons, 6 bounces, a 0.40, 12x24 cells"
+    assert panels.preset_summary("FINAL") == "1,000,000 photons, 6 bounces, a 0.40, 16x32 cells"
     assert panels.preset_summary("PREVIEW").endswith("no refinement")
 
 
