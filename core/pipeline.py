@@ -12,11 +12,12 @@ count or scheduling.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from . import texels as texel_stage
+from .bake_cache import BakeCache, target_key, transport_key
 from .dilate import dilate
 from .direct import DirectResult, direct_irradiance
 from .executor import Executor, Progress, default_workers
@@ -64,73 +65,247 @@ class BakeResult:
 
 
 def bake(scene: Scene, settings: BakeSettings, progress: Progress | None = None,
-         executor: Executor | None = None) -> BakeResult:
-    """Bake light maps for every target of ``scene``."""
+         executor: Executor | None = None, cache: BakeCache | None = None) -> BakeResult:
+    """Bake light maps for every target of ``scene``.
+
+    cache : intermediates from earlier bakes to reuse, and where to store this bake's
+        (:class:`~core.bake_cache.BakeCache`, content-keyed); None computes everything.
+        An unchanged scene re-baked with the same cache traces no photon and casts no
+        ray (counters ``photon_rays``, ``rays_cast`` are 0); changing one object's
+        resolution redoes only that object's texels.
+    """
     progress = progress or Progress()
     own_executor = executor is None
     executor = executor or Executor(settings.threads or default_workers())
     stats = BakeStats()
     try:
-        return _bake(scene, settings, progress, executor, stats)
+        return _bake(scene, settings, progress, executor, stats, cache)
     finally:
         if own_executor:
             executor.close()
 
 
-def _bake(scene: Scene, settings: BakeSettings, progress: Progress, executor: Executor, stats: BakeStats):
+@dataclass
+class _TargetWork:
+    """One target's texel samples and what has been computed for them."""
+
+    points: texel_stage.TexelPoints
+    raster: texel_stage.TargetRaster
+    key: str
+    E_direct: np.ndarray | None = None
+    E_indirect: np.ndarray | None = None
+    holes: IrradianceCache | None = None
+
+
+def _bake(scene: Scene, settings: BakeSettings, progress: Progress, executor: Executor, stats: BakeStats,
+          store: BakeCache | None):
     if not scene.targets:
         raise SceneError("nothing to bake: the scene has no bake targets")
     if not scene.has_light():
         raise SceneError("nothing emits light: add a light, an emissive material or a world colour")
+    transport = transport_key(scene) if store is not None else ""
+    stats.set(triangles=scene.geometry.count, targets=len(scene.targets),
+              emissive_triangles=len(scene.emissive_triangles), lights=len(scene.lights))
+    caster_box: list = []
 
-    progress.begin("Building BVH")
-    with stats.stage("bvh"):
-        caster = RayCaster(scene.geometry.positions, scene.extent, executor)
-    stats.set(triangles=scene.geometry.count, targets=len(scene.targets))
+    def caster() -> RayCaster:  # the BVH is built only if some stage casts rays
+        if not caster_box:
+            progress.begin("Building BVH")
+            with stats.stage("bvh"):
+                caster_box.append(RayCaster(scene.geometry.positions, scene.extent, executor))
+        return caster_box[0]
 
+    # -- texel samples, per target (only the scene's targets: objects not baked are never rasterised)
     progress.begin("Rasterising texels")
+    work: list[_TargetWork] = []
+    rasterised = 0
     with stats.stage("rasterise"):
-        points, rasters = texel_stage.lift_texels(scene, settings.texel_samples)
-    stats.set(texel_samples=len(points), texels_covered=int(sum(r.coverage.sum() for r in rasters)))
+        for target in scene.targets:
+            key = target_key(scene, target, settings.texel_samples)  # also seeds the target's streams
+            cached = _get(store, "raster", key)
+            if cached is None:
+                points, rasters = texel_stage.lift_texels(replace(scene, targets=(target,)), settings.texel_samples)
+                cached = (points, rasters[0])
+                _put(store, "raster", key, cached)
+                rasterised += 1
+            work.append(_TargetWork(cached[0], cached[1], key))
+    rasters = [w.raster for w in work]
+    stats.set(texel_samples=sum(len(w.points) for w in work),
+              texels_covered=int(sum(r.coverage.sum() for r in rasters)), targets_rasterised=rasterised)
 
-    E_direct = np.zeros((len(points), 3))
+    # -- direct light at the texels of each target not already shaded
+    direct_key = lambda w: store.key("direct", transport, w.key, settings.direct_samples, settings.seed)  # noqa: E731
+    for w in work:
+        w.E_direct = np.zeros((len(w.points), 3))
     if settings.direct:
-        progress.begin("Direct light")
-        with stats.stage("direct"):
-            E_direct, counters = shade_direct(scene, caster, points.p, points.n_shading, points.n_geometric,
-                                              settings.direct_samples, settings.seed, _STREAM_DIRECT,
-                                              executor, progress)
-        stats.add(**counters)
+        todo = []
+        for w in work:
+            cached = _get(store, "direct", direct_key(w) if store is not None else "")
+            if cached is not None:
+                w.E_direct = cached
+            else:
+                todo.append(w)
+        stats.set(targets_shaded_direct=len(todo))
+        if todo:
+            progress.begin("Direct light")
+            with stats.stage("direct"):
+                for w in todo:
+                    p = w.points
+                    w.E_direct, counters = shade_direct(scene, caster(), p.p, p.n_shading, p.n_geometric,
+                                                        settings.direct_samples, settings.seed,
+                                                        (_STREAM_DIRECT, _stream_of(w.key)),
+                                                        executor, progress)
+                    stats.add(**counters)
+                    if store is not None:
+                        _put(store, "direct", direct_key(w), w.E_direct)
 
-    E_indirect = np.zeros((len(points), 3))
-    cache = photon_map = None
+    # -- indirect light: passes 1-3 only if some target still needs it
+    base_cache = photon_map = None
+    for w in work:
+        w.E_indirect = np.zeros((len(w.points), 3))
     if settings.indirect and settings.photons > 0:
-        progress.begin("Texel validity")
-        with stats.stage("validity"):
-            inside, rays = inside_geometry(caster, scene.geometry.face_normals(), points.p, points.n_geometric,
-                                           np.random.default_rng([settings.seed, _STREAM_VALIDITY]))
-        stats.set(texel_samples_inside_geometry=int(inside.sum()), validity_rays=rays)
-        valid = np.flatnonzero(~inside)
-        E_valid, cache, photon_map = indirect_light(scene, caster, points.take(valid), rasters, settings,
-                                                    executor, progress, stats)
-        E_indirect[valid] = E_valid
+        params = cache_parameters(scene, rasters, settings)
+        photon_bounces = settings.max_bounces - 1 if settings.refine else settings.max_bounces
+        photon_key = store.key("photons", transport, settings.photons, photon_bounces, settings.seed) \
+            if store is not None else ""
+        cache_key = store.key("cache", photon_key, params, settings.refine, settings.hemisphere_theta,
+                              settings.hemisphere_phi, settings.reuse_photon_paths) if store is not None else ""
+        indirect_key = lambda w: store.key("indirect", cache_key, w.key, settings.gradients)  # noqa: E731
+        todo = []
+        for w in work:
+            cached = _get(store, "indirect", indirect_key(w) if store is not None else "")
+            if cached is not None:
+                w.E_indirect, w.holes = cached
+            else:
+                todo.append(w)
+        stats.set(targets_shaded_indirect=len(todo))
+        cached = _get(store, "cache", cache_key) if todo else None
+        if cached is not None:
+            base_cache, photon_map = cached
+        elif todo:
+            photon_map = _get(store, "photons", photon_key)
+            if photon_map is None:
+                photon_map = trace_pass(scene, caster(), settings, photon_bounces, executor, progress, stats)
+                _put(store, "photons", photon_key, photon_map)
+            base_cache = build_cache(scene, caster, photon_map, params, settings, executor, progress, stats)
+            _put(store, "cache", cache_key, (base_cache, photon_map))
+        if todo:
+            density = PhotonDensity(photon_map) if len(photon_map) else None
+            for w in todo:
+                w.E_indirect, w.holes = indirect_at_texels(scene, caster(), density, base_cache, w, params,
+                                                           settings, executor, progress, stats)
+                if store is not None:
+                    _put(store, "indirect", indirect_key(w), (w.E_indirect, w.holes))
+        if base_cache is None:  # every target came from the store
+            cached = _get(store, "cache", cache_key)
+            base_cache, photon_map = cached if cached is not None else (IrradianceCache(), None)
+        stats.set(hole_records=int(sum(len(w.holes) for w in work if w.holes is not None)))
+        full = base_cache
+        for w in work:
+            if w.holes is not None and len(w.holes):
+                full = full.extend(w.holes)
+        base_cache = full
+        stats.set(records_total=len(base_cache))
 
     progress.begin("Writing light maps")
-    result = BakeResult(cache=cache, photons=photon_map)
+    result = BakeResult(cache=base_cache, photons=photon_map)
     with stats.stage("dilate"):
-        for i, (target, raster) in enumerate(zip(scene.targets, rasters)):
-            direct_img = texel_stage.splat(E_direct, points, raster) / np.pi
-            indirect_img = texel_stage.splat(E_indirect, points, raster) / np.pi
-            rgb, coverage = dilate((direct_img + indirect_img).astype(np.float32), raster.coverage,
+        for target, w in zip(scene.targets, work):
+            direct_img = texel_stage.splat(w.E_direct, w.points, w.raster) / np.pi
+            indirect_img = texel_stage.splat(w.E_indirect, w.points, w.raster) / np.pi
+            rgb, coverage = dilate((direct_img + indirect_img).astype(np.float32), w.raster.coverage,
                                    settings.padding + 2)
             rgba = np.concatenate([rgb, coverage[..., None].astype(np.float32)], axis=2)
             result.lightmaps[target.name] = _finite(rgba, target.name)
-            result.centre_inside[target.name] = raster.centre_inside
+            result.centre_inside[target.name] = w.raster.centre_inside
             result.direct[target.name] = direct_img.astype(np.float32)
             result.indirect[target.name] = indirect_img.astype(np.float32)
-    stats.set(rays_cast=caster.rays_cast)
+    stats.set(rays_cast=caster_box[0].rays_cast if caster_box else 0)
+    stats.set(photon_rays=stats.counters.get("photon_rays", 0))
+    if store is not None:
+        stats.set(**store.counters())
     result.stats = stats.as_dict()
     return result
+
+
+def _get(store: BakeCache | None, kind: str, key: str):
+    return None if store is None else store.get(kind, key)
+
+
+def _put(store: BakeCache | None, kind: str, key: str, value) -> None:
+    if store is not None:
+        store.put(kind, key, value)
+
+
+def _stream_of(key: str) -> int:
+    """A per-target random stream id from its content key: the same texels draw the same numbers
+    whatever else is baked with them, so a target's light map can be reused on its own."""
+    return int(key[:8], 16)
+
+
+def trace_pass(scene: Scene, caster: RayCaster, settings: BakeSettings, photon_bounces: int, executor: Executor,
+               progress: Progress, stats: BakeStats) -> PhotonMap:
+    """Pass 1, with its counters."""
+    progress.begin("Pass 1: tracing photons")
+    with stats.stage("photons"):
+        photon_map, trace = trace_photons(scene, caster, settings.photons, photon_bounces, settings.seed,
+                                          executor, progress)
+    stats.set(photons_emitted=trace.emitted, photons_stored=trace.stored, photon_rays=trace.rays,
+              photons_escaped=trace.escaped, photon_emitters=len(trace.emitted_per_light),
+              max_bounces=settings.max_bounces, photon_bounces=photon_bounces, photon_bytes=photon_map.nbytes,
+              bytes_per_photon=PhotonMap.BYTES_PER_PHOTON)
+    return photon_map
+
+
+def build_cache(scene: Scene, caster, photon_map: PhotonMap, params: CacheParameters, settings: BakeSettings,
+                executor: Executor, progress: Progress, stats: BakeStats) -> IrradianceCache:
+    """Pass 2 (Algorithm 1) and, for Final quality, pass 3 (refinement). ``caster`` is a callable."""
+    if len(photon_map) == 0:
+        return IrradianceCache()
+    progress.begin("Pass 2: irradiance cache")
+    with stats.stage("cache"):
+        density = PhotonDensity(photon_map)
+        cache, zones, build = generate_irradiance_cache(density, params, settings.seed, progress)
+        cache.R = neighbour_clamp(cache.p, cache.R)
+    stats.set(records=build.records, kd_queries=build.kd_queries, R_min=params.R_min, R_max=params.R_max)
+    if settings.refine:
+        from .refinement import refine_records  # pass 3
+
+        progress.begin("Pass 3: refining records")
+        with stats.stage("photon_direct"):
+            photon_map.E_direct[:] = shade_direct(
+                scene, caster(), photon_map.p.astype(np.float64), photon_map.n.astype(np.float64),
+                photon_map.n.astype(np.float64), PHOTON_DIRECT_SAMPLES, settings.seed, _STREAM_PHOTON_DIRECT,
+                executor, progress)[0]
+        with stats.stage("refine"):  # noqa: SIM117 (stages are timed separately)
+            cache, refine_counters = refine_records(scene, caster(), density, cache, zones, settings, params,
+                                                    executor, progress)
+        stats.add(**refine_counters)
+    return cache
+
+
+def indirect_at_texels(scene: Scene, caster: RayCaster, density: PhotonDensity | None, cache: IrradianceCache,
+                       work: _TargetWork, params: CacheParameters, settings: BakeSettings, executor: Executor,
+                       progress: Progress, stats: BakeStats) -> tuple[np.ndarray, IrradianceCache]:
+    """Texel validity, then Equation 3 with hole records for one target: (E (n, 3), its hole records)."""
+    points = work.points
+    E = np.zeros((len(points), 3))
+    if density is None or len(points) == 0:
+        return E, IrradianceCache()
+    progress.begin("Texel validity")
+    with stats.stage("validity"):
+        stream = _stream_of(work.key)
+        inside, rays = inside_geometry(caster, scene.geometry.face_normals(), points.p, points.n_geometric,
+                                       np.random.default_rng([settings.seed, _STREAM_VALIDITY, stream]))
+    stats.add(texel_samples_inside_geometry=int(inside.sum()), validity_rays=rays)
+    valid = np.flatnonzero(~inside)
+    progress.begin("Interpolating the cache at texels")
+    with stats.stage("interpolate"):
+        E_valid, full, hole_records, unfilled = interpolate_filling_holes(
+            scene, caster, density, cache, points.take(valid), params, settings, executor, progress)
+    stats.add(texel_samples_unfilled=unfilled)
+    E[valid] = E_valid
+    return E, full.take(slice(len(cache), None))
 
 
 def shade_direct(scene: Scene, caster: RayCaster, p: np.ndarray, n_shading: np.ndarray, n_geometric: np.ndarray,
@@ -144,7 +319,7 @@ def shade_direct(scene: Scene, caster: RayCaster, p: np.ndarray, n_shading: np.n
 
     def run(job):
         index, s = job
-        rng = np.random.default_rng([seed, stream, index])
+        rng = np.random.default_rng([seed, *np.atleast_1d(stream).tolist(), index])
         out = direct_irradiance(scene, serial, p[s], n_shading[s], n_geometric[s], samples, rng)
         done[0] += 1
         progress.update(done[0] / len(chunks))
@@ -154,6 +329,8 @@ def shade_direct(scene: Scene, caster: RayCaster, p: np.ndarray, n_shading: np.n
     counters = {f"shadow_rays_{k}": v for k, v in merged.shadow_rays.items()}
     counters["shadow_rays"] = sum(merged.shadow_rays.values())
     counters["shadow_rays_skipped_points"] = sum(merged.skipped.values())
+    for light, skipped in merged.skipped.items():  # points that cast no ray toward this emitter
+        counters[f"shadow_rays_skipped_points:{light}"] = skipped
     caster.rays_cast += counters["shadow_rays"]
     return merged.E, counters
 
@@ -169,52 +346,6 @@ def cache_parameters(scene: Scene, rasters, settings: BakeSettings) -> CachePara
     R_min = min(settings.r_min_texels * texel_size, R_max)
     return CacheParameters(a=settings.a, r_nearest=settings.r_nearest, R_min=max(R_min, 1e-9 * scene.extent),
                            R_max=R_max)
-
-
-def indirect_light(scene: Scene, caster: RayCaster, points, rasters, settings: BakeSettings,
-                   executor: Executor, progress: Progress, stats: BakeStats):
-    """Passes 1-3 and the cache lookup at texels; returns (E_indirect (n, 3), cache, photon map)."""
-    # Final gathering adds the last bounce itself (the hits' irradiance already holds the photons'
-    # bounces), so refined bakes trace one bounce fewer and both qualities count max_bounces alike.
-    photon_bounces = settings.max_bounces - 1 if settings.refine else settings.max_bounces
-    progress.begin("Pass 1: tracing photons")
-    with stats.stage("photons"):
-        photon_map, trace = trace_photons(scene, caster, settings.photons, photon_bounces, settings.seed,
-                                          executor, progress)
-    stats.set(photons_emitted=trace.emitted, photons_stored=trace.stored, photon_rays=trace.rays,
-              photons_escaped=trace.escaped, max_bounces=settings.max_bounces, photon_bounces=photon_bounces,
-              photon_bytes=photon_map.nbytes, bytes_per_photon=PhotonMap.BYTES_PER_PHOTON)
-    if len(photon_map) == 0:
-        return np.zeros((len(points), 3)), IrradianceCache(), photon_map
-
-    params = cache_parameters(scene, rasters, settings)
-    progress.begin("Pass 2: irradiance cache")
-    with stats.stage("cache"):
-        density = PhotonDensity(photon_map)
-        cache, zones, build = generate_irradiance_cache(density, params, settings.seed, progress)
-        cache.R = neighbour_clamp(cache.p, cache.R)
-    stats.set(records=build.records, kd_queries=build.kd_queries, R_min=params.R_min, R_max=params.R_max)
-
-    if settings.refine:
-        from .refinement import refine_records  # pass 3
-
-        progress.begin("Pass 3: refining records")
-        with stats.stage("photon_direct"):
-            photon_map.E_direct[:] = shade_direct(
-                scene, caster, photon_map.p.astype(np.float64), photon_map.n.astype(np.float64),
-                photon_map.n.astype(np.float64), PHOTON_DIRECT_SAMPLES, settings.seed, _STREAM_PHOTON_DIRECT,
-                executor, progress)[0]
-        with stats.stage("refine"):  # noqa: SIM117 (stages are timed separately)
-            cache, refine_counters = refine_records(scene, caster, density, cache, zones, settings, params,
-                                                    executor, progress)
-        stats.add(**refine_counters)
-
-    progress.begin("Interpolating the cache at texels")
-    with stats.stage("interpolate"):
-        E, cache, hole_records, unfilled = interpolate_filling_holes(scene, caster, density, cache, points,
-                                                                     params, settings, executor, progress)
-    stats.set(hole_records=hole_records, texel_samples_unfilled=unfilled, records_total=len(cache))
-    return E, cache, photon_map
 
 
 def interpolate_filling_holes(scene, caster, density: PhotonDensity, cache: IrradianceCache, points,
