@@ -15,7 +15,7 @@ from scipy.spatial import cKDTree
 from .irradiance_cache import IrradianceCache
 from .ward import accepted, record_estimate, ward_weight
 
-NEAREST_PER_BIN = 24
+NEAREST_PER_BIN = 16
 """Records considered per radius bin and point; more than Equation 2 ever accepts in practice."""
 
 

@@ -31,4 +31,4 @@ if [[ ! -f "$blend" ]]; then
     fi
 fi
 
-exec "$PY" pdic_bake.py --blend "$blend" --output "out/$scene" "$@"
+exec "$PY" pdic_bake.py --blend "$blend" --output "out/$scene" --preview-png "out/$scene/preview.png" --exposure -1 "$@"
