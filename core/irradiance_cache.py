@@ -146,40 +146,37 @@ class PhotonDensity:
         d = np.maximum(d, 1e-12 * R_max)
         return float(ok.sum() / np.sum(1.0 / d))
 
-    def sphere(self, p_k: np.ndarray, radius: float) -> np.ndarray:
-        """Indices (int64) of the photons within ``radius`` of p_k: the influence sphere S_{a R_k}."""
-        self.queries += 1
-        return np.asarray(self.tree.query_ball_point(p_k, radius), dtype=np.int64)
+    def record(self, p_k: np.ndarray, n_k: np.ndarray, R_k: float, a: float
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+        """Both photon queries of one record creation, gathering the sphere's photons once.
 
-    def zone(self, sphere: np.ndarray, p_k: np.ndarray, n_k: np.ndarray, R_k: float, a: float
-             ) -> tuple[np.ndarray, np.ndarray]:
-        """Photons of the sphere that record k contributes to (Equation 2), and their Ward weights."""
-        m = len(sphere)
-        if m == 0:
-            return sphere, np.zeros(0)
-        w = ward_weight(self.p[sphere], self.n[sphere], np.broadcast_to(p_k, (m, 3)),
-                        np.broadcast_to(n_k, (m, 3)), np.full(m, R_k))
-        ok = accepted(w, a, self.p[sphere], self.n[sphere], np.broadcast_to(p_k, (m, 3)),
-                      np.broadcast_to(n_k, (m, 3)), np.full(m, R_k))
-        return sphere[ok], w[ok]
+        Returns (zone, w, E_k, used): the photons of S_{a R_k} that record k contributes
+        to (Equation 2) with their Ward weights, the Epanechnikov estimate E_k (3,) and
+        the number of indirect photons it used.
 
-    def epanechnikov_irradiance(self, p_k: np.ndarray, n_k: np.ndarray, sphere: np.ndarray, radius: float
-                                ) -> tuple[np.ndarray, int]:
-        """E_k: 2D Epanechnikov density estimate over the sphere's indirect photons (bandwidth = radius).
-
-        K(d) = 2 / (pi r^2) * (1 - d^2 / r^2), which integrates to 1 over the disc of radius r.
-        Photons whose normal disagrees with n_k (n . n_k < :data:`SAME_SURFACE_COS`: another
-        wall of a corner, the far side of a thin wall) are rejected. The selection is by
-        distance, not by Ward's weight: the kernel is normalised over the whole disc, and
-        on a curved surface Equation 2 would accept a smaller region than that disc.
+        E_k: K(d) = 2 / (pi r^2) * (1 - d^2 / r^2), r = a R_k, integrates to 1 over the
+        disc. Photons whose normal disagrees with n_k (n . n_k < :data:`SAME_SURFACE_COS`:
+        another wall of a corner, the far side of a thin wall) are rejected. The
+        selection is by distance, not by Ward's weight: the kernel is normalised over
+        the whole disc, and on a curved surface Equation 2 accepts a smaller region.
         """
-        ind = sphere[self.is_indirect[sphere]]
-        ind = ind[self.n[ind] @ n_k >= SAME_SURFACE_COS]
-        if len(ind) == 0:
-            return np.zeros(3), 0
-        d2 = np.sum((self.p[ind] - p_k) ** 2, axis=1)
-        kernel = 2.0 / (np.pi * radius * radius) * np.maximum(1.0 - d2 / (radius * radius), 0.0)
-        return kernel @ self.power[ind], len(ind)
+        radius = a * R_k
+        sphere = np.asarray(self.tree.query_ball_point(p_k, radius), dtype=np.int64)
+        self.queries += 1
+        if len(sphere) == 0:
+            return sphere, np.zeros(0), np.zeros(3), 0
+        P, N = self.p[sphere], self.n[sphere]
+        w = ward_weight(P, N, p_k, n_k, R_k)
+        ok = accepted(w, a, P, N, p_k, n_k, R_k)
+        cos = N @ n_k
+        use = self.is_indirect[sphere] & (cos >= SAME_SURFACE_COS)
+        used = int(use.sum())
+        E_k = np.zeros(3)
+        if used:
+            d2 = np.sum((P[use] - p_k) ** 2, axis=1)
+            kernel = 2.0 / (np.pi * radius * radius) * np.maximum(1.0 - d2 / (radius * radius), 0.0)
+            E_k = kernel @ self.power[sphere[use]]
+        return sphere[ok], w[ok], E_k, used
 
 
 def generate_irradiance_cache(density: PhotonDensity, params: CacheParameters, seed: int,
@@ -227,19 +224,15 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
             R_k = density.harmonic_mean_distance(p_k, n_k, params.r_nearest, params.R_max)
             R_k = min(max(R_k, params.R_min), params.R_max)
             R_k = clamp.clamp(p_k, R_k)
-            sphere = density.sphere(p_k, a * R_k)
-            zone, w = density.zone(sphere, p_k, n_k, R_k, a)
-            E_k, used = density.epanechnikov_irradiance(p_k, n_k, sphere, a * R_k)
+            zone, w, E_k, used = density.record(p_k, n_k, R_k, a)
             if candidate_is_photon:
                 members, w_members = zone, w
             else:
                 members = np.asarray(cand_tree.query_ball_point(p_k, a * R_k), dtype=np.int64)
                 stats.kd_queries += 1
-                m = len(members)
-                w_members = ward_weight(cand_p[members], cand_n[members], np.broadcast_to(p_k, (m, 3)),
-                                        np.broadcast_to(n_k, (m, 3)), np.full(m, R_k))
-                ok = accepted(w_members, a, cand_p[members], cand_n[members], np.broadcast_to(p_k, (m, 3)),
-                              np.broadcast_to(n_k, (m, 3)), np.full(m, R_k))
+                P, N = cand_p[members], cand_n[members]
+                w_members = ward_weight(P, N, p_k, n_k, R_k)
+                ok = accepted(w_members, a, P, N, p_k, n_k, R_k)
                 members, w_members = members[ok], w_members[ok]
             w_sum[members] += w_members
             E_sum[members] += w_members[:, None] * E_k

@@ -25,7 +25,8 @@ IN_FRONT = 0.05
 def ward_weight(p: np.ndarray, n: np.ndarray, p_k: np.ndarray, n_k: np.ndarray, R_k: np.ndarray) -> np.ndarray:
     """Equation 1 for matching rows: (m,) float64 weights, finite and positive.
 
-    p, n : (m, 3) query points and unit normals; p_k, n_k : (m, 3) records; R_k : (m,) > 0.
+    p, n : (m, 3) query points and unit normals; p_k, n_k : (m, 3) records, or (3,) for
+    one record against many points; R_k : (m,) or a scalar, > 0.
     """
     d = np.linalg.norm(p - p_k, axis=-1)
     cos = np.clip(np.einsum("...j,...j->...", n, n_k), -1.0, 1.0)

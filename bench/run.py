@@ -1,0 +1,443 @@
+"""The PDIC benchmark suite: run time against error, the paper's tables, scaling, re-bakes.
+
+    .venv/bin/python -m bench.run            # full suite, ~30 min on 2 cores
+    .venv/bin/python -m bench.run --quick    # CI-sized, ~5 min
+    .venv/bin/python -m bench.run --only errors,tables
+
+Writes ``bench/results/results.json``, ``results.md`` and PNG plots; with
+``--publish`` also copies the Markdown to ``bench/RESULTS.md`` and the plots to
+``bench/plots/`` (the committed summary the README quotes). See bench/README.md.
+
+Sections
+--------
+errors   Cornell (point light), 64x64 per object in the sample's ``LightMap`` UVs: PDIC
+         Preview/Final at several photon counts against Cycles at a ladder of samples
+         (adaptive off and on); relative RMSE vs the committed 16384-spp reference.
+tables   Table 1 (per-pass times, photons, bounces, records) and Table 2 (rays and time of
+         standard final gathering vs photon-path reuse) on Cornell, Sponza, the occluded building.
+figure5  [Chr99] (irradiance at photons, nearest-photon lookup) vs the pass-2 preview: time, error.
+scaling  photons 50k..4M and texels 64^2..2048^2, time and peak memory (one subprocess per
+         point, ru_maxrss), and a linear cost model per pass.
+rebake   an unchanged re-bake and a one-object resolution change with a BakeCache: time ratio.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import shutil
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+import pdic_bootstrap  # noqa: E402
+
+pdic_bootstrap.load()
+import bpy  # noqa: E402
+
+from pdic import pdic_addon  # noqa: E402
+from pdic.bench import scenes as bench_scenes  # noqa: E402
+from pdic.core import christensen  # noqa: E402
+from pdic.core import texels as texel_stage  # noqa: E402
+from pdic.core.bake_cache import BakeCache  # noqa: E402
+from pdic.core.executor import Executor, Progress, default_workers  # noqa: E402
+from pdic.core.irradiance_cache import PhotonDensity  # noqa: E402
+from pdic.core.pipeline import bake, build_cache, cache_parameters, interpolate_filling_holes, trace_pass  # noqa: E402
+from pdic.core.rays import RayCaster  # noqa: E402
+from pdic.core.settings import preset  # noqa: E402
+from pdic.core.stats import BakeStats  # noqa: E402
+from pdic.core.validity import inside_geometry  # noqa: E402
+
+RESULTS = ROOT / "bench" / "results"
+REFERENCES = ROOT / "bench" / "references"
+REFERENCE_INDIRECT = REFERENCES / "cornell_point_64_16384_4_INDIRECT.npz"
+REFERENCE_DIRECT = REFERENCES / "cornell_point_64_256_4_DIRECT.npz"
+CORNELL_RES = 64
+CORNELL_BOUNCES = 4
+
+
+# --------------------------------------------------------------------------- helpers
+def relative_rmse(test: dict, ref: dict, masks: dict) -> float:
+    """sqrt(mean (test - ref)^2) / mean(ref) over the texels Cycles baked, all objects and channels."""
+    t = np.concatenate([test[n][masks[n]].ravel() for n in ref])
+    r = np.concatenate([ref[n][masks[n]].ravel() for n in ref])
+    return float(np.sqrt(np.mean((t - r) ** 2)) / max(r.mean(), 1e-30))
+
+
+def load_reference():
+    ind = np.load(REFERENCE_INDIRECT)
+    direct = np.load(REFERENCE_DIRECT)
+    names = [k[4:] for k in ind if k.startswith("img_")]
+    ref_ind = {n: ind[f"img_{n}"] for n in names}
+    ref_all = {n: ind[f"img_{n}"] + direct[f"img_{n}"] for n in names}
+    masks = {n: ind[f"cov_{n}"] for n in names}
+    return ref_all, ref_ind, masks, float(ind["seconds"])
+
+
+def timed(fn, *args, **kw):
+    t = time.perf_counter()
+    out = fn(*args, **kw)
+    return out, time.perf_counter() - t
+
+
+def cornell_scene(res: int = CORNELL_RES):
+    objects = bench_scenes.load_cornell("cornell_point")
+    return objects, bench_scenes.extract_lightmap_uv(objects, res)
+
+
+def log(*a):
+    print(*a, flush=True)
+
+
+# --------------------------------------------------------------------------- (a) error vs time
+def section_errors(quick: bool) -> dict:
+    from pdic.bench.cycles_reference import cycles_bake_full
+
+    ref_all, ref_ind, masks, ref_seconds = load_reference()
+    objects, scene = cornell_scene()
+    pdic_runs = []
+    configs = [("PREVIEW", 100_000), ("PREVIEW", 250_000), ("PREVIEW", 1_000_000),
+               ("FINAL", 100_000), ("FINAL", 250_000), ("FINAL", 1_000_000)]
+    if quick:
+        configs = [("PREVIEW", 100_000), ("FINAL", 100_000)]
+    for quality, photons in configs:
+        settings = preset(quality, photons=photons, max_bounces=CORNELL_BOUNCES)
+        result, seconds = timed(bake, scene, settings)
+        run = dict(method=f"PDIC {quality.title()}", quality=quality, photons=photons, seconds=seconds,
+                   error_all=relative_rmse({n: result.lightmaps[n][..., :3] for n in ref_all}, ref_all, masks),
+                   error_indirect=relative_rmse(result.indirect, ref_ind, masks))
+        log("errors", run)
+        pdic_runs.append(run)
+    cycles_runs = []
+    ladder = [(16, False), (64, False), (256, False), (1024, False), (64, True), (256, True), (1024, True)]
+    if quick:
+        ladder = [(4, False), (16, False), (16, True)]
+    for spp, adaptive in ladder:
+        both = cycles_bake_full(objects, "LightMap", CORNELL_RES, CORNELL_RES, {"DIRECT", "INDIRECT"}, spp,
+                                adaptive=adaptive, diffuse_bounces=CORNELL_BOUNCES)
+        ind = cycles_bake_full(objects, "LightMap", CORNELL_RES, CORNELL_RES, {"INDIRECT"}, spp,
+                               adaptive=adaptive, diffuse_bounces=CORNELL_BOUNCES)
+        run = dict(method="Cycles adaptive" if adaptive else "Cycles", spp=spp, adaptive=adaptive,
+                   seconds=both.total_seconds, seconds_indirect=ind.total_seconds,
+                   error_all=relative_rmse(both.images, ref_all, masks),
+                   error_indirect=relative_rmse(ind.images, ref_ind, masks),
+                   texel_samples_per_second=both.texel_samples_per_second())
+        log("errors", run)
+        cycles_runs.append(run)
+    out = dict(scene="cornell_point", resolution=CORNELL_RES, bounces=CORNELL_BOUNCES, pdic=pdic_runs,
+               cycles=cycles_runs, reference_seconds=ref_seconds, reference_spp=16384)
+    out.update(speedups(pdic_runs, cycles_runs))
+    # 512x512: PDIC time measured, Cycles time extrapolated from its measured throughput.
+    res512 = 256 if quick else 512
+    _, scene512 = cornell_scene(res512)
+    big = []
+    for quality, photons in ([("PREVIEW", 250_000), ("FINAL", 250_000)] if not quick else [("PREVIEW", 100_000)]):
+        result, seconds = timed(bake, scene512, preset(quality, photons=photons, max_bounces=CORNELL_BOUNCES))
+        big.append(dict(quality=quality, photons=photons, resolution=res512, seconds=seconds,
+                        texel_samples=result.stats["counters"]["texel_samples"],
+                        texels_covered=result.stats["counters"]["texels_covered"]))
+        log("errors 512", big[-1])
+    out["pdic_512"] = big
+    return out
+
+
+def speedups(pdic_runs: list, cycles_runs: list) -> dict:
+    """Equal-error speed-ups: Cycles' error(time) fitted as err = A t^b (log-log, non-adaptive ladder)."""
+    out = {}
+    for kind, t_key in (("all", "seconds"), ("indirect", "seconds_indirect")):
+        pts = [(r[t_key], r[f"error_{kind}"]) for r in cycles_runs if not r["adaptive"]]
+        if len(pts) < 2:
+            continue
+        t, e = np.log([p[0] for p in pts]), np.log([p[1] for p in pts])
+        b, logA = np.polyfit(t, e, 1)
+        out[f"cycles_fit_{kind}"] = dict(A=float(np.exp(logA)), b=float(b))
+        rows = []
+        for r in pdic_runs:
+            t_cycles = float(np.exp((np.log(r[f"error_{kind}"]) - logA) / b))
+            rows.append(dict(method=r["method"], photons=r["photons"], error=r[f"error_{kind}"],
+                             pdic_seconds=r["seconds"], cycles_seconds_at_equal_error=t_cycles,
+                             speedup=t_cycles / r["seconds"]))
+        out[f"speedup_{kind}"] = rows
+    # the reference's own noise: the fitted error at its sample count, by spp (err ~ spp^-1/2)
+    nonad = [r for r in cycles_runs if not r["adaptive"]]
+    if nonad:
+        k = np.mean([r["error_indirect"] * np.sqrt(r["spp"]) for r in nonad])
+        out["reference_noise_indirect"] = float(k / np.sqrt(16384))
+    return out
+
+
+# --------------------------------------------------------------------------- (b) tables
+def table_scenes(quick: bool) -> list:
+    """(name, loader, settings overrides, how to get a core scene)."""
+    if quick:
+        return [("Cornell", 100_000, 4, None), ("Occluded", 100_000, 9, 2.0)]
+    return [("Cornell", 250_000, 4, None), ("Sponza", 4_000_000, 9, 4.0), ("Occluded", 1_000_000, 9, 4.0)]
+
+
+def load_table_scene(name: str, texel_density):
+    if name == "Cornell":
+        return cornell_scene()[1]
+    objects = bench_scenes.load_sponza() if name == "Sponza" else bench_scenes.load_occluded()
+    settings = preset("FINAL", texel_density=texel_density, min_resolution=32)
+    _, scene = bench_scenes.prepare(objects, settings, RESULTS / "cache" / name)
+    return scene
+
+
+def section_tables(quick: bool, errors_ref=None) -> dict:
+    table1, table2, fig5 = [], [], []
+    ref = load_reference()
+    for name, photons, bounces, density in table_scenes(quick):
+        scene = load_table_scene(name, density)
+        extra = {} if density is None else dict(texel_density=density, min_resolution=32)
+        for reuse in (True, False):
+            settings = preset("FINAL", photons=photons, max_bounces=bounces, reuse_photon_paths=reuse, **extra)
+            result, seconds = timed(bake, scene, settings)
+            s, c = result.stats["seconds"], result.stats["counters"]
+            err = None
+            if name == "Cornell":
+                err = dict(error_all=relative_rmse({n: result.lightmaps[n][..., :3] for n in ref[0]}, ref[0], ref[2]),
+                           error_indirect=relative_rmse(result.indirect, ref[1], ref[2]))
+            row = dict(scene=name, reuse=reuse, seconds=seconds, stage_seconds=s, triangles=c["triangles"],
+                       texels=int(sum(t.width * t.height for t in scene.targets)),
+                       texel_samples=c["texel_samples"], photons_emitted=c.get("photons_emitted", 0),
+                       photons_stored=c.get("photons_stored", 0), bounces=bounces, records=c.get("records", 0),
+                       hole_records=c.get("hole_records", 0), records_total=c.get("records_total", 0),
+                       refine_rays=c.get("refine_rays_cast", 0) + c.get("refine_shadow_rays", 0),
+                       refine_gather_rays=c.get("refine_rays_cast", 0),
+                       refine_virtual_rays=c.get("refine_virtual_rays", 0), refine_cells=c.get("refine_cells", 0),
+                       photon_bytes=c.get("photon_bytes", 0), **(err or {}))
+            log("tables", {k: v for k, v in row.items() if k != "stage_seconds"})
+            (table1 if reuse else table2).append(row)
+        fig5.append(figure5(name, scene, photons, bounces, extra, ref if name == "Cornell" else None))
+    # pair Table 2 rows
+    pairs = []
+    for with_reuse, standard in zip(table1, table2):
+        pairs.append(dict(scene=with_reuse["scene"], standard_rays=standard["refine_gather_rays"],
+                          reuse_rays=with_reuse["refine_gather_rays"],
+                          standard_seconds=standard["stage_seconds"].get("refine", 0.0),
+                          reuse_seconds=with_reuse["stage_seconds"].get("refine", 0.0),
+                          rays_saved=1 - with_reuse["refine_gather_rays"] / max(standard["refine_gather_rays"], 1),
+                          standard_error_indirect=standard.get("error_indirect"),
+                          reuse_error_indirect=with_reuse.get("error_indirect")))
+    return dict(table1=table1, table2_runs=table2, table2=pairs, figure5=fig5)
+
+
+def figure5(name, scene, photons, bounces, extra, ref) -> dict:
+    """[Chr99] vs the pass-2 preview on the same photon map and texels: time and error."""
+    settings = preset("PREVIEW", photons=photons, max_bounces=bounces, **extra)
+    executor = Executor(default_workers())
+    progress, stats = Progress(), BakeStats()
+    try:
+        caster = RayCaster(scene.geometry.positions, scene.extent, executor)
+        points, rasters = texel_stage.lift_texels(scene, settings.texel_samples)
+        inside, _ = inside_geometry(caster, scene.geometry.face_normals(), points.p, points.n_geometric,
+                                    np.random.default_rng(0))
+        valid = np.flatnonzero(~inside)
+        photon_map, t_photons = timed(trace_pass, scene, caster, settings, bounces, executor, progress, stats)
+        # [Chr99]
+        (estimate, E_chr), t_chr = timed(lambda: _christensen(photon_map, points.take(valid)))
+        # pass 2 + Ward interpolation with hole records
+        params = cache_parameters(scene, rasters, settings)
+
+        def pdic_preview():
+            cache = build_cache(scene, lambda: caster, photon_map, params, settings, executor, progress, stats)
+            E, _, _, _ = interpolate_filling_holes(scene, caster, PhotonDensity(photon_map), cache, points.take(valid),
+                                                   params, settings, executor, progress)
+            return cache, E
+
+        (cache, E_pdic), t_pdic = timed(pdic_preview)
+    finally:
+        executor.close()
+    out = dict(scene=name, photons=photons, photon_seconds=t_photons, christensen_seconds=t_chr,
+               christensen_points=len(estimate), preview_seconds=t_pdic, records=len(cache))
+    images = {}
+    for label, E_valid in (("christensen", E_chr), ("preview", E_pdic)):
+        E = np.zeros((len(points), 3))
+        E[valid] = E_valid
+        images[label] = {t.name: texel_stage.splat(E, points, r) / np.pi for t, r in zip(scene.targets, rasters)}
+    if ref is not None:
+        for label in images:
+            out[f"{label}_error_indirect"] = relative_rmse(images[label], ref[1], ref[2])
+    else:  # no Cycles reference: how far apart the two are
+        a = np.concatenate([v.ravel() for v in images["christensen"].values()])
+        b = np.concatenate([v.ravel() for v in images["preview"].values()])
+        out["christensen_vs_preview_rmse"] = float(np.sqrt(np.mean((a - b) ** 2)) / max(b.mean(), 1e-30))
+    log("figure5", out)
+    if name == "Cornell":
+        out["_images"] = images
+    return out
+
+
+def _christensen(photon_map, points):
+    estimate = christensen.precompute_irradiance(photon_map)
+    return estimate, christensen.lookup(estimate, points.p, points.n_shading)
+
+
+# --------------------------------------------------------------------------- (c) scaling
+def scaling_point(kind: str, value: int, quality: str) -> dict:
+    """One scaling measurement (run in its own process): times per pass and peak RSS."""
+    if kind == "photons":
+        _, scene = cornell_scene(64)
+        settings = preset(quality, photons=value, max_bounces=CORNELL_BOUNCES)
+    else:  # texels: total light-map texels, shared by Cornell's 8 objects
+        per_object = max(8, int(round(np.sqrt(value / 8))))
+        _, scene = cornell_scene(per_object)
+        settings = preset(quality, photons=250_000, max_bounces=CORNELL_BOUNCES)
+    result, seconds = timed(bake, scene, settings)
+    c = result.stats["counters"]
+    return dict(kind=kind, value=value, quality=quality, seconds=seconds, stage_seconds=result.stats["seconds"],
+                texel_samples=c["texel_samples"], photons_stored=c.get("photons_stored", 0),
+                records=c.get("records_total", 0),
+                peak_rss_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
+
+
+def section_scaling(quick: bool) -> dict:
+    photons = [50_000, 200_000, 1_000_000, 4_000_000] if not quick else [50_000, 200_000]
+    texels = [64 ** 2, 256 ** 2, 1024 ** 2, 2048 ** 2] if not quick else [64 ** 2, 256 ** 2]
+    points = []
+    jobs = [("photons", p, "PREVIEW") for p in photons] + [("photons", p, "FINAL") for p in photons[:3]] + \
+           [("texels", t, "PREVIEW") for t in texels]
+    for kind, value, quality in jobs:
+        cmd = [sys.executable, "-m", "bench.run", "--point", f"{kind}={value}", "--quality", quality]
+        proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+        line = [x for x in proc.stdout.splitlines() if x.startswith("POINT ")]
+        if proc.returncode != 0 or not line:
+            log("scaling point failed", kind, value, quality, proc.stderr[-2000:])
+            continue
+        points.append(json.loads(line[-1][6:]))
+        log("scaling", {k: v for k, v in points[-1].items() if k != "stage_seconds"})
+    return dict(points=points, cost_model=cost_model(points))
+
+
+PHOTON_STAGES = ("photons", "cache", "photon_direct", "refine")
+TEXEL_STAGES = ("rasterise", "direct", "validity", "interpolate", "dilate")
+
+
+def cost_model(points: list) -> dict:
+    """Per pass, t = c0 + c1 x fitted by least squares (x = photons or texel samples) and the
+    log-log slope (1 = linear)."""
+    model = {}
+    for quality in ("PREVIEW", "FINAL"):
+        for kind, stages, x_key in (("photons", PHOTON_STAGES, "value"), ("texels", TEXEL_STAGES, "texel_samples")):
+            pts = [p for p in points if p["kind"] == kind and p["quality"] == quality]
+            if len(pts) < 2:
+                continue
+            x = np.array([p[x_key] for p in pts], float)
+            for stage in stages:
+                y = np.array([p["stage_seconds"].get(stage, 0.0) for p in pts])
+                if not (y > 0).all():
+                    continue
+                c1, c0 = np.polyfit(x, y, 1)
+                slope = np.polyfit(np.log(x), np.log(y), 1)[0]
+                model[f"{quality}:{stage}"] = dict(per=("photon" if kind == "photons" else "texel sample"),
+                                                   c0_seconds=float(c0), c1_microseconds=float(c1 * 1e6),
+                                                   loglog_slope=float(slope))
+            mem = np.array([p["peak_rss_mb"] for p in pts])
+            c1, c0 = np.polyfit(x, mem, 1)
+            model[f"{quality}:memory_{kind}"] = dict(c0_mb=float(c0), bytes_per_unit=float(c1 * 2 ** 20))
+    return model
+
+
+# --------------------------------------------------------------------------- re-bake
+def section_rebake(quick: bool) -> dict:
+    _, scene = cornell_scene()
+    settings = preset("FINAL", photons=100_000 if quick else 250_000, max_bounces=CORNELL_BOUNCES)
+    store = BakeCache()
+    first, t_first = timed(bake, scene, settings, cache=store)
+    again, t_again = timed(bake, scene, settings, cache=store)
+    target = scene.targets[0]
+    finer = replace(scene, targets=(replace(target, width=2 * target.width, height=2 * target.height),)
+                    + scene.targets[1:])
+    changed, t_changed = timed(bake, finer, settings, cache=store)
+    out = dict(first_seconds=t_first, unchanged_seconds=t_again, unchanged_ratio=t_again / t_first,
+               one_resolution_seconds=t_changed, one_resolution_ratio=t_changed / t_first,
+               changed_object=target.name,
+               unchanged_counters={k: again.stats["counters"][k] for k in ("photon_rays", "rays_cast",
+                                                                            "targets_rasterised")},
+               one_resolution_counters={k: changed.stats["counters"].get(k, 0) for k in (
+                   "photon_rays", "rays_cast", "targets_rasterised", "targets_shaded_direct",
+                   "targets_shaded_indirect")})
+    log("rebake", out)
+    return out
+
+
+# --------------------------------------------------------------------------- report
+def machine() -> dict:
+    cpu = platform.processor() or ""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return dict(cpu=cpu, cores=default_workers(), python=platform.python_version(), blender=bpy.app.version_string,
+                system=f"{platform.system()} {platform.release()}", date=time.strftime("%Y-%m-%d"))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="bench.run", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="CI-sized run (minutes)")
+    ap.add_argument("--only", default="errors,tables,scaling,rebake",
+                    help="comma-separated sections: errors, tables (incl. figure 5), scaling, rebake")
+    ap.add_argument("--out", default=str(RESULTS))
+    ap.add_argument("--publish", action="store_true", help="copy results.md and plots to bench/RESULTS.md, bench/plots/")
+    ap.add_argument("--point", help=argparse.SUPPRESS)
+    ap.add_argument("--quality", default="PREVIEW", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.point:
+        kind, value = args.point.split("=")
+        print("POINT " + json.dumps(scaling_point(kind, int(value), args.quality)), flush=True)
+        return
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    pdic_addon.register()
+    sections = [s.strip() for s in args.only.split(",") if s.strip()]
+    results = dict(machine=machine(), quick=args.quick)
+    path = out / "results.json"
+    if path.exists():  # keep sections not re-run
+        try:
+            old = json.loads(path.read_text())
+            results.update({k: v for k, v in old.items() if k not in sections and k not in ("machine", "quick")})
+        except ValueError:
+            pass
+    start = time.perf_counter()
+    for name in sections:
+        t = time.perf_counter()
+        results[name] = {"errors": section_errors, "tables": section_tables, "scaling": section_scaling,
+                         "rebake": section_rebake}[name](args.quick)
+        results[name]["section_seconds"] = time.perf_counter() - t
+        images = _pop_images(results)
+        path.write_text(json.dumps(results, indent=1, default=float))
+        from pdic.bench import report
+        report.write(results, out, images)
+    log(f"bench done in {time.perf_counter() - start:.0f} s -> {out}")
+    if args.publish:
+        plots = ROOT / "bench" / "plots"
+        plots.mkdir(exist_ok=True)
+        shutil.copy(out / "results.md", ROOT / "bench" / "RESULTS.md")
+        for png in out.glob("*.png"):
+            shutil.copy(png, plots / png.name)
+
+
+def _pop_images(results) -> dict:
+    images = {}
+    for row in results.get("tables", {}).get("figure5", []):
+        if "_images" in row:
+            images[row["scene"]] = row.pop("_images")
+    return images
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("PYTHONUNBUFFERED", "1")
+    main()
