@@ -118,7 +118,7 @@ def section_errors(quick: bool) -> dict:
         log("errors", run)
         pdic_runs.append(run)
     cycles_runs = []
-    ladder = [(16, False), (64, False), (256, False), (1024, False), (64, True), (256, True), (1024, True)]
+    ladder = [(16, False), (64, False), (256, False), (1024, False), (16, True), (256, True)]
     if quick:
         ladder = [(4, False), (16, False), (16, True)]
     for spp, adaptive in ladder:

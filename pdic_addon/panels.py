@@ -351,11 +351,4 @@ classes = (VIEW3D_PT_pdic, VIEW3D_PT_pdic_settings, VIEW3D_PT_pdic_output, VIEW3
            VIEW3D_PT_pdic_display, VIEW3D_PT_pdic_stats, OBJECT_PT_pdic)
 
 
-def register():
-    for cls in classes:
-        bpy.utils.register_class(cls)
-
-
-def unregister():
-    for cls in reversed(classes):
-        bpy.utils.unregister_class(cls)
+register, unregister = bpy.utils.register_classes_factory(classes)

@@ -84,11 +84,4 @@ def cache_dir(prefs=None, sub: str = "") -> Path:
 classes = (PDIC_AddonPreferences,)
 
 
-def register():
-    for cls in classes:
-        bpy.utils.register_class(cls)
-
-
-def unregister():
-    for cls in reversed(classes):
-        bpy.utils.unregister_class(cls)
+register, unregister = bpy.utils.register_classes_factory(classes)
