@@ -174,19 +174,27 @@ def _assemble(waves: list, count: int) -> PhotonMap:
 
 
 def concatenate(batches: list[PhotonMap], emitted: int) -> PhotonMap:
-    """Stitch batches into one map, offsetting each batch's path links."""
-    total = sum(len(b) for b in batches)
-    out = PhotonMap(*_allocate(total), emitted=emitted)
-    start = 0
-    for b in batches:
-        s = slice(start, start + len(b))
-        for f in fields(PhotonMap):
+    """Stitch batches into one map, offsetting each batch's path links.
+
+    Field by field, releasing each batch's copy as soon as it is stitched, so the
+    peak is the map plus one field of the batches rather than two whole maps.
+    """
+    sizes = [len(b) for b in batches]
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+    columns = {}
+    for f in fields(PhotonMap):
+        if f.name == "emitted":
+            continue
+        parts = []
+        for b, start in zip(batches, starts):
             value = getattr(b, f.name)
-            if isinstance(value, np.ndarray):
-                getattr(out, f.name)[s] = value
-        out.prev[s] = np.where(b.prev >= 0, b.prev + start, -1)
-        start = s.stop
-    return out
+            if f.name == "prev":
+                value = np.where(value >= 0, value + start, -1).astype(np.int32)
+            parts.append(value)
+            setattr(b, f.name, None)
+        columns[f.name] = np.concatenate(parts) if parts else _allocate(0)[[x.name for x in fields(PhotonMap)].index(f.name)]
+        del parts
+    return PhotonMap(**columns, emitted=emitted)
 
 
 @dataclass(frozen=True)

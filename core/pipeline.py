@@ -187,6 +187,11 @@ def _bake(scene: Scene, settings: BakeSettings, progress: Progress, executor: Ex
             if photon_map is None:
                 photon_map = trace_pass(scene, caster(), settings, photon_bounces, executor, progress, stats)
                 _put(store, "photons", photon_key, photon_map)
+            # Passes 2-3 write the section 3.1 fields; give them their own arrays so a stored map
+            # (and caches built on it with other parameters) keeps its own.
+            photon_map = replace(photon_map, w_sum=np.zeros_like(photon_map.w_sum),
+                                 E_indirect_sum=np.zeros_like(photon_map.E_indirect_sum),
+                                 E_direct=np.zeros_like(photon_map.E_direct))
             base_cache = build_cache(scene, caster, photon_map, params, settings, executor, progress, stats)
             _put(store, "cache", cache_key, (base_cache, photon_map))
         if todo:

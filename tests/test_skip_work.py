@@ -190,3 +190,17 @@ def test_changing_one_resolution_redoes_only_that_object():
     coarse = bake(_scene(_box_faces(), {"floor": (FLOOR, 12), "back": (BACK, 8)}, [LAMP]), settings, cache=store)
     c = _counters(coarse)
     assert c["photon_rays"] == 0 and c["records"] > 0 and c["targets_rasterised"] == 1
+
+
+def test_reused_photon_map_serves_several_caches_without_mixing_them():
+    scene = _scene(_box_faces(), {"floor": (FLOOR, 10)}, [LAMP])
+    settings = preset("FINAL", photons=4000, max_bounces=3, threads=1, hemisphere_theta=6, hemisphere_phi=12)
+    store = BakeCache()
+    first = bake(scene, settings, cache=store)
+    other = bake(scene, preset("FINAL", photons=4000, max_bounces=3, threads=1, hemisphere_theta=6,
+                               hemisphere_phi=12, a=0.25), cache=store)
+    assert _counters(other)["photon_rays"] == 0 and _counters(other)["records"] > 0
+    # Back to the first parameters: its stored cache and photon fields were not overwritten.
+    again = bake(scene, settings, cache=store)
+    np.testing.assert_array_equal(first.lightmaps["floor"], again.lightmaps["floor"])
+    np.testing.assert_array_equal(first.photons.w_sum, again.photons.w_sum)
