@@ -101,10 +101,20 @@ class CacheParameters:
 
 @dataclass
 class Zones:
-    """Photons in each record's zone of influence, CSR: record k owns photon[start[k]:start[k+1]]."""
+    """Photons in each record's zone of influence: ``parts[k]`` (int32 indices) for record k.
 
-    start: np.ndarray
-    photon: np.ndarray
+    Kept as one array per record rather than one concatenated array: the copy would
+    double the zones' memory at the moment pass 2 peaks (66 MB for 4M photons).
+    """
+
+    parts: list
+
+    def batch(self, s: slice) -> tuple[np.ndarray, np.ndarray]:
+        """(lengths (b,), photons (sum,) int64) of records s.start..s.stop-1, in record order."""
+        chunk = self.parts[s]
+        lengths = np.array([len(z) for z in chunk], np.int64)
+        photons = np.concatenate(chunk).astype(np.int64) if chunk else np.zeros(0, np.int64)
+        return lengths, photons
 
 
 @dataclass
@@ -193,9 +203,7 @@ def generate_irradiance_cache(density: PhotonDensity, params: CacheParameters, s
                               progress=None) -> tuple[IrradianceCache, Zones, CacheBuildStats]:
     """Algorithm 1 over the photons themselves; fills the photons' w_sum and E_indirect_sum."""
     photons = density.photons
-    # The running sums live in the photons' own float32 fields (section 3.1): no second copy.
-    photons.w_sum[:] = 0.0
-    photons.E_indirect_sum[:] = 0.0
+    # The running sums live in the photons' own float32 fields (section 3.1, zero on arrival): no copy.
     return place_records(density, density.p, density.n, photons.w_sum, photons.E_indirect_sum, params,
                          np.random.default_rng([seed, 2]), candidate_is_photon=True, progress=progress)
 
@@ -217,7 +225,7 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
     threshold = 1.0 / a
     stats = CacheBuildStats()
     rec_p, rec_n, rec_E, rec_R, rec_used = [], [], [], [], []
-    zone_start, zone_photons = [0], []
+    zone_photons = []
     clamp = _NeighbourClamp(existing)
     cand_tree = None if candidate_is_photon else cKDTree(cand_p)
     order = rng.permutation(len(cand_p))
@@ -253,7 +261,6 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
             rec_R.append(R_k)
             rec_used.append(used)
             zone_photons.append(zone.astype(np.int32))
-            zone_start.append(zone_start[-1] + len(zone))
             clamp.add(p_k, R_k)
         if progress is not None:
             progress.update(min(1.0, (b0 + len(block)) / max(len(order), 1)))
@@ -266,8 +273,7 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
         grad_r=np.zeros((K, 3, 3)), grad_t=np.zeros((K, 3, 3)),
         photons_used=np.array(rec_used, np.int32), hole=np.full(K, not candidate_is_photon),
         refined=np.zeros(K, bool))
-    zones = Zones(np.array(zone_start, np.int64),
-                  np.concatenate(zone_photons) if zone_photons else np.zeros(0, np.int32))
+    zones = Zones(zone_photons)
     return cache, zones, stats
 
 

@@ -181,9 +181,13 @@ def concatenate(batches: list[PhotonMap], emitted: int) -> PhotonMap:
     """
     sizes = [len(b) for b in batches]
     starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
-    columns = {}
+    total = int(sum(sizes))
+    # The section 3.1 fields start at zero: fresh zeros cost no resident memory until
+    # written (Preview never writes E_direct), where stitching them would touch every page.
+    columns = {"w_sum": np.zeros(total, np.float32), "E_indirect_sum": np.zeros((total, 3), np.float32),
+               "E_direct": np.zeros((total, 3), np.float32)}
     for f in fields(PhotonMap):
-        if f.name == "emitted":
+        if f.name == "emitted" or f.name in columns:
             continue
         parts = []
         for b, start in zip(batches, starts):

@@ -64,7 +64,7 @@ def refine_records(scene: Scene, caster: RayCaster, density: PhotonDensity, cach
         index, s = job
         rng = np.random.default_rng([settings.seed, stream, index])
         out = _refine_batch(scene, serial, density, radiance_out, E_indirect, cache.p[s], cache.n[s],
-                            zones.start[s.start:s.stop + 1], zones.photon, H, settings.reuse_photon_paths, rng)
+                            *zones.batch(s), H, settings.reuse_photon_paths, rng)
         done[0] += 1
         if progress is not None:
             progress.update(done[0] / len(batches))
@@ -105,8 +105,8 @@ def limit_gradients(E: np.ndarray, grad_t: np.ndarray, grad_r: np.ndarray, zone_
 
 
 def _refine_batch(scene: Scene, caster: RayCaster, density: PhotonDensity, radiance_out: np.ndarray,
-                  E_indirect: np.ndarray, p_k: np.ndarray, n_k: np.ndarray, zone_start: np.ndarray,
-                  zone_photon: np.ndarray, H: Hemisphere, reuse: bool, rng: np.random.Generator) -> dict:
+                  E_indirect: np.ndarray, p_k: np.ndarray, n_k: np.ndarray, zone_lengths: np.ndarray,
+                  zone_photons: np.ndarray, H: Hemisphere, reuse: bool, rng: np.random.Generator) -> dict:
     B, C = len(p_k), H.cells
     t1, t2, n = local_frames(n_k)
     visibility_rays = 0
@@ -139,9 +139,8 @@ def _refine_batch(scene: Scene, caster: RayCaster, density: PhotonDensity, radia
 
     # -- virtual rays from the photon paths of each zone (Figure 4a-b)
     if reuse:
-        lengths = np.diff(zone_start)
-        rec = np.repeat(np.arange(B), lengths)
-        ph = zone_photon[zone_start[0]:zone_start[-1]].astype(np.int64)
+        rec = np.repeat(np.arange(B), zone_lengths)
+        ph = zone_photons
         prev = density.photons.prev[ph]
         keep = prev >= 0
         rec, ph, prev = rec[keep], ph[keep], prev[keep].astype(np.int64)
