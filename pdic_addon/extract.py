@@ -197,6 +197,18 @@ def read_object_triangles(obj, matrix_world, name: str, table: MaterialTable, li
         start = time.perf_counter()
         slot_rows = _materials_of(obj, mesh, table)
         timings["materials"] = timings.get("materials", 0.0) + time.perf_counter() - start
+        # Textures whose UV Map node names another UV map read that layer on their triangles.
+        rows = slot_rows[np.clip(material_local, 0, len(slot_rows) - 1)]
+        for row in np.unique(rows):
+            wanted = table.uv_map_of(int(row))
+            if not wanted or (render_layer is not None and wanted == render_layer.name):
+                continue
+            layer = mesh.uv_layers.get(wanted)
+            if layer is None:
+                table.warnings.append(f"object {name!r}: material {table.name_of(int(row))!r} samples UV map "
+                                      f"{wanted!r}, which the mesh lacks; using the active render UV map")
+                continue
+            uvs[rows == row] = _read_uv(mesh, layer, loops)[rows == row]
     finally:
         obj.to_mesh_clear()
 

@@ -98,6 +98,8 @@ class MaterialTable:
         self._emission: list = []
         self._textures: list = []         # core.scene.Texture
         self._texture_index: dict = {}    # (image session_uid, interpolation) -> texture row
+        self._uv_map: list = []           # per row: UV map named by the texture's UV Map node ("" = render map)
+        self._pending_uv_map = ""
 
     # ------------------------------------------------------------------ public
     def index(self, material) -> int:
@@ -105,6 +107,7 @@ class MaterialTable:
         material = None if material is None else material.original
         key = None if material is None else material.session_uid
         if key not in self._index:
+            self._pending_uv_map = ""
             if material is None:
                 row = ("default", DEFAULT_BASE_COLOR, -1, (0.0, 0.0, 0.0))
             else:
@@ -112,7 +115,16 @@ class MaterialTable:
             self._index[key] = len(self._names)
             for column, value in zip((self._names, self._base_color, self._texture, self._emission), row):
                 column.append(value)
+            self._uv_map.append(self._pending_uv_map)
         return self._index[key]
+
+    def name_of(self, row: int) -> str:
+        """Material name of ``row`` (for messages)."""
+        return self._names[row]
+
+    def uv_map_of(self, row: int) -> str:
+        """UV map the material of ``row`` samples its texture with; "" for the active render UV map."""
+        return self._uv_map[row]
 
     def build(self) -> tuple[Materials, tuple]:
         """(Materials, textures) for :class:`core.scene.Scene`; at least the default material."""
@@ -197,10 +209,14 @@ class MaterialTable:
             self._warn(f"material {material_name!r}: Image Texture node {node.name!r} has no image; using the constant colour")
             return -1
         if node.inputs["Vector"].is_linked:
-            self._warn(
-                f"material {material_name!r}: image {image.name!r} uses a custom Vector input; "
-                "sampling it with the active render UV map instead"
-            )
+            source = node.inputs["Vector"].links[0].from_node
+            if source.bl_idname == "ShaderNodeUVMap":  # a named UV map: extraction reads that layer
+                self._pending_uv_map = source.uv_map
+            else:
+                self._warn(
+                    f"material {material_name!r}: image {image.name!r} uses a custom Vector input "
+                    f"({source.bl_label}); sampling it with the active render UV map instead"
+                )
         interpolation = "Closest" if node.interpolation == "Closest" else "Linear"
         key = (image.session_uid, interpolation)
         if key in self._texture_index:

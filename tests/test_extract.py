@@ -256,6 +256,28 @@ def test_texture_pixels_decoded_by_colour_space(blender, colorspace, decode):
     assert abs(float(tex.pixels[1, 1, 0]) - (0.2158 if decode else 0.50196)) < 1e-3
 
 
+def test_uv_map_node_selects_the_texture_uv_layer(blender):
+    # A UV Map node feeding the Image Texture names the layer to sample: read it, do not warn.
+    image = blender.data.images.new("Tiles", 4, 4)
+    mat = _textured_material(blender, "Tiled", image)
+    uv_node = mat.node_tree.nodes.new("ShaderNodeUVMap")
+    uv_node.uv_map = "Tiling"
+    mat.node_tree.links.new(uv_node.outputs["UV"], mat.node_tree.nodes["Image Texture"].inputs["Vector"])
+    ob = add_mesh(blender, "Floor", QUAD_VERTS, QUAD_FACES, material=mat)
+    tiling = ob.data.uv_layers.new(name="Tiling")
+    tiling.data.foreach_set("uv", np.full(2 * len(ob.data.loops), 7.5, np.float32))
+    for layer in ob.data.uv_layers:
+        layer.active_render = layer.name == LM  # the render map is another one
+    add_light(blender, "Lamp")
+    ex = run(blender, [ob])
+    np.testing.assert_allclose(ex.scene.geometry.uvs, 7.5)
+    assert not any("Vector input" in w for w in ex.warnings), ex.warnings
+
+    uv_node.uv_map = "Missing"
+    ex = run(blender, [ob])
+    assert any("'Floor'" in w and "'Missing'" in w and "'Tiled'" in w for w in ex.warnings), ex.warnings
+
+
 def test_missing_image_warns_and_uses_socket_colour(blender):
     image = blender.data.images.new("Gone", 4, 4)
     image.source = "FILE"
