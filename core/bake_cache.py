@@ -102,6 +102,10 @@ def target_key(scene, target, texel_samples: int) -> str:
                         g.positions[tri], g.normals[tri], int(texel_samples))
 
 
+DEFAULT_MAX_BYTES = 2 * 1024 ** 3
+"""Disk budget of a bake cache folder (2 GiB: a few 4M-photon maps)."""
+
+
 class BakeCache:
     """Content-keyed store of bake intermediates.
 
@@ -125,6 +129,25 @@ class BakeCache:
         self.hits = {k: 0 for k in KINDS}
         self.misses = {k: 0 for k in KINDS}
         self.stores = {k: 0 for k in KINDS}
+
+    def prune(self, max_bytes: int = DEFAULT_MAX_BYTES) -> int:
+        """Delete the least recently written disk entries until the folder holds at most ``max_bytes``.
+
+        Returns the number of files removed. A photon map can take hundreds of MB, so the
+        add-on prunes after every bake rather than letting the folder grow without bound.
+        """
+        if self.folder is None or not self.folder.is_dir():
+            return 0
+        files = sorted(self.folder.glob("*.pkl"), key=lambda f: f.stat().st_mtime, reverse=True)
+        total, removed = 0, 0
+        for f in files:
+            size = f.stat().st_size
+            if total + size > max_bytes:
+                f.unlink(missing_ok=True)
+                removed += 1
+            else:
+                total += size
+        return removed
 
     def key(self, kind: str, *parts) -> str:
         """The full key of an entry: kind, format version, code hash and ``parts``."""

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .irradiance_cache import IrradianceCache
+from .irradiance_cache import IrradianceCache, beyond_wall
 from .ward import accepted, record_estimate, ward_weight
 
 NEAREST_PER_BIN = 16
@@ -58,6 +58,7 @@ class CacheLookup:
             rec = idx[local[rows, cols]]
             w = ward_weight(p[rows], n[rows], c.p[rec], c.n[rec], c.R[rec])
             ok = accepted(w, self.a, p[rows], n[rows], c.p[rec], c.n[rec], c.R[rec])
+            ok &= ~beyond_wall(c.wall[rec], p[rows] - c.p[rec], c.n[rec])
             rows, rec, w = rows[ok], rec[ok], w[ok]
             E_rec = record_estimate(c.E[rec], p[rows], n[rows], c.p[rec], c.n[rec],
                                     c.grad_r[rec] if self.use_gradients else None,

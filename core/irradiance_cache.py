@@ -37,6 +37,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .photons import PhotonMap
+from .sampling import orthonormal_basis
 from .ward import accepted, ward_weight
 
 # Records created before the record kd-tree is rebuilt (neighbour clamping looks
@@ -44,6 +45,15 @@ from .ward import accepted, ward_weight
 _REBUILD_EVERY = 512
 # A candidate block scanned at once when looking for uncovered candidates.
 _BLOCK = 4096
+WALL_RAYS = 8
+"""Azimuth sectors (one tangent-plane ray each) in which a record's zone ends at the nearest wall."""
+WALL_LIFT = 0.05
+"""Height of the wall rays above the surface, as a fraction of the zone radius."""
+WALL_MARGIN = 1e-3
+"""Relative margin that keeps the wall bound off exact ties with grid-aligned texel samples."""
+SECTOR_OFFSET = 0.3819660112501051
+"""Sector grid rotation (radians, 1/phi^2): boundaries and rays never align with axis-aligned grids,
+where texel samples would sit exactly on a boundary and float noise would pick the sector."""
 R_OVERSAMPLE = 3
 """Neighbours fetched per wanted indirect photon when estimating R_k."""
 SAME_SURFACE_COS = 0.7
@@ -52,7 +62,7 @@ SAME_SURFACE_COS = 0.7
 
 @dataclass
 class IrradianceCache:
-    """Irradiance records, struct of arrays (K records; 8*(3+3+3+1+9+9) + 4 + 1 + 1 = 230 bytes each).
+    """Irradiance records, struct of arrays (K records; 8*(3+3+3+1+9+9) + 4 + 1 + 1 + 4*8 = 262 bytes each).
 
     p, n : (K, 3) float64 scene-local position and unit normal of each record.
     E : (K, 3) float64 indirect irradiance E_k, W/m^2.
@@ -72,6 +82,13 @@ class IrradianceCache:
     photons_used: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     hole: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     refined: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    wall: np.ndarray | None = None
+    """(K, WALL_RAYS) float32 distance to the nearest wall per azimuth sector of the record's
+    tangent plane (inf: none within reach); None = no walls known (every sector open)."""
+
+    def __post_init__(self):
+        if self.wall is None:
+            self.wall = np.full((len(self.p), WALL_RAYS), np.inf, np.float32)
 
     def __len__(self) -> int:
         return len(self.p)
@@ -122,6 +139,7 @@ class CacheBuildStats:
     records: int = 0
     kd_queries: int = 0
     candidates_visited: int = 0
+    wall_rays: int = 0
 
 
 class PhotonDensity:
@@ -140,6 +158,8 @@ class PhotonDensity:
         self.last_hit = (photons.p + photons.wi * photons.d_prev[:, None]).astype(np.float32)
         self.is_indirect = photons.is_indirect
         self.queries = 0
+        self.records: IrradianceCache | None = None  # pass 2's records, set by generate_irradiance_cache
+        self.records_lookup = None  # their CacheLookup, built by pass 3 when it needs one
 
     def harmonic_mean_distance(self, p_k: np.ndarray, n_k: np.ndarray, count: int, R_max: float) -> float:
         """R_k from the last hits of the ``count`` nearest indirect photons (Figure 3); R_max if none fit.
@@ -166,7 +186,7 @@ class PhotonDensity:
         d = np.maximum(d, 1e-12 * R_max)
         return float(ok.sum() / np.sum(1.0 / d))
 
-    def record(self, p_k: np.ndarray, n_k: np.ndarray, R_k: float, a: float
+    def record(self, p_k: np.ndarray, n_k: np.ndarray, R_k: float, a: float, wall: np.ndarray | None = None
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
         """Both photon queries of one record creation, gathering the sphere's photons once.
 
@@ -190,28 +210,39 @@ class PhotonDensity:
         ok = accepted(w, a, P, N, p_k, n_k, R_k)
         cos = N @ n_k
         use = self.is_indirect[sphere] & (cos >= SAME_SURFACE_COS)
+        mass = 1.0
+        if wall is not None and np.isfinite(wall).any():
+            # Photons past a wall are another room's: leave them out and normalise the kernel
+            # over the part of the disc on this side (Epanechnikov mass within u r: 2u^2 - u^4).
+            m = len(sphere)
+            use &= ~beyond_wall(np.broadcast_to(wall, (m, WALL_RAYS)), P - p_k, np.broadcast_to(n_k, (m, 3)))
+            u = np.minimum(wall.astype(np.float64) / radius, 1.0)
+            mass = max(float(np.mean(2 * u ** 2 - u ** 4)), 1e-3)
         used = int(use.sum())
         E_k = np.zeros(3)
         if used:
             d2 = np.sum((P[use] - p_k) ** 2, axis=1)
             kernel = 2.0 / (np.pi * radius * radius) * np.maximum(1.0 - d2 / (radius * radius), 0.0)
-            E_k = kernel @ self.power[sphere[use]].astype(np.float64)
+            E_k = kernel @ self.power[sphere[use]].astype(np.float64) / mass
         return sphere[ok], w[ok], E_k, used
 
 
 def generate_irradiance_cache(density: PhotonDensity, params: CacheParameters, seed: int,
-                              progress=None) -> tuple[IrradianceCache, Zones, CacheBuildStats]:
+                              progress=None, caster=None) -> tuple[IrradianceCache, Zones, CacheBuildStats]:
     """Algorithm 1 over the photons themselves; fills the photons' w_sum and E_indirect_sum."""
     photons = density.photons
     # The running sums live in the photons' own float32 fields (section 3.1, zero on arrival): no copy.
-    return place_records(density, density.p, density.n, photons.w_sum, photons.E_indirect_sum, params,
-                         np.random.default_rng([seed, 2]), candidate_is_photon=True, progress=progress)
+    cache, zones, stats = place_records(density, density.p, density.n, photons.w_sum, photons.E_indirect_sum,
+                                        params, np.random.default_rng([seed, 2]), candidate_is_photon=True,
+                                        progress=progress, caster=caster)
+    density.records = cache
+    return cache, zones, stats
 
 
 def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray, w_sum: np.ndarray,
                   E_sum: np.ndarray, params: CacheParameters, rng: np.random.Generator,
-                  candidate_is_photon: bool, progress=None, existing: IrradianceCache | None = None
-                  ) -> tuple[IrradianceCache, Zones, CacheBuildStats]:
+                  candidate_is_photon: bool, progress=None, existing: IrradianceCache | None = None,
+                  caster=None) -> tuple[IrradianceCache, Zones, CacheBuildStats]:
     """The record-placement loop of Algorithm 1 over a generic candidate set.
 
     cand_p, cand_n : (c, 3) float64 candidate positions and normals.
@@ -220,11 +251,13 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
         zone's photons are the candidates to update; otherwise (holes) the
         candidates within the zone are found by their own kd-tree.
     existing : records already placed (neighbour clamping also looks at them).
+    caster : a :class:`core.rays.RayCaster` over the scene; with it each record finds the walls
+        in its tangent plane (:func:`wall_distances`), past which it is not used.
     """
     a = params.a
     threshold = 1.0 / a
     stats = CacheBuildStats()
-    rec_p, rec_n, rec_E, rec_R, rec_used = [], [], [], [], []
+    rec_p, rec_n, rec_E, rec_R, rec_used, rec_wall = [], [], [], [], [], []
     zone_photons = []
     clamp = _NeighbourClamp(existing)
     cand_tree = None if candidate_is_photon else cKDTree(cand_p)
@@ -239,7 +272,16 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
             R_k = density.harmonic_mean_distance(p_k, n_k, params.r_nearest, params.R_max)
             R_k = min(max(R_k, params.R_min), params.R_max)
             R_k = clamp.clamp(p_k, R_k)
-            zone, w, E_k, used = density.record(p_k, n_k, R_k, a)
+            wall = None
+            if caster is not None:
+                wall = wall_distances(caster, p_k[None], n_k[None], np.array([a * R_k]))[0]
+                stats.wall_rays += WALL_RAYS
+            # Walls limit where a record is *used* (interpolation, hole coverage). A record at a photon
+            # estimates E_k and lends virtual rays from its whole disc: cutting those discs at every
+            # corner of a box cost 3 points of Preview error and two thirds of the rays saved on the
+            # Cornell box. A hole record may sit where no photon arrives (behind a thin wall); there
+            # photons past a wall would leak light in, so its estimate stops at its walls.
+            zone, w, E_k, used = density.record(p_k, n_k, R_k, a, None if candidate_is_photon else wall)
             if candidate_is_photon:
                 members, w_members = zone, w
             else:
@@ -248,6 +290,9 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
                 P, N = cand_p[members], cand_n[members]
                 w_members = ward_weight(P, N, p_k, n_k, R_k)
                 ok = accepted(w_members, a, P, N, p_k, n_k, R_k)
+                if wall is not None:
+                    m = len(members)
+                    ok &= ~beyond_wall(np.broadcast_to(wall, (m, WALL_RAYS)), P - p_k, np.broadcast_to(n_k, (m, 3)))
                 members, w_members = members[ok], w_members[ok]
             w_sum[members] += w_members
             E_sum[members] += w_members[:, None] * E_k
@@ -260,6 +305,7 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
             rec_E.append(E_k)
             rec_R.append(R_k)
             rec_used.append(used)
+            rec_wall.append(wall if wall is not None else np.full(WALL_RAYS, np.inf, np.float32))
             zone_photons.append(zone.astype(np.int32))
             clamp.add(p_k, R_k)
         if progress is not None:
@@ -272,9 +318,51 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
         E=np.array(rec_E, np.float64).reshape(K, 3), R=np.array(rec_R, np.float64),
         grad_r=np.zeros((K, 3, 3)), grad_t=np.zeros((K, 3, 3)),
         photons_used=np.array(rec_used, np.int32), hole=np.full(K, not candidate_is_photon),
-        refined=np.zeros(K, bool))
+        refined=np.zeros(K, bool), wall=np.array(rec_wall, np.float32).reshape(K, WALL_RAYS))
     zones = Zones(zone_photons)
     return cache, zones, stats
+
+
+def sector_of(delta: np.ndarray, n_k: np.ndarray) -> np.ndarray:
+    """(m,) int azimuth sector (0..WALL_RAYS-1) of offsets ``delta`` (m, 3) in the tangent frames of ``n_k``."""
+    t1, t2 = orthonormal_basis(n_k)
+    angle = np.arctan2(np.einsum("ij,ij->i", delta, t2), np.einsum("ij,ij->i", delta, t1))
+    turn = np.mod((angle - SECTOR_OFFSET) / (2 * np.pi), 1.0)
+    return np.minimum((turn * WALL_RAYS).astype(np.int64), WALL_RAYS - 1)
+
+
+def wall_distances(caster, p_k: np.ndarray, n_k: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """(K, WALL_RAYS) float32 distance to the nearest wall per sector of each record's tangent plane.
+
+    A zone of influence is a sphere: where a wall stands on the surface (a 1 mm
+    partition on a floor, a box resting on it), the sphere reaches the floor on
+    the wall's far side, same plane, same normal, and Ward's weights carry light
+    through. One ray per sector, along the tangent plane at the sector's centre
+    angle and lifted by :data:`WALL_LIFT` of the reach, finds such walls up to
+    ``reach`` (K,); texels and photons past a sector's wall are not the record's.
+    """
+    K = len(p_k)
+    phi = SECTOR_OFFSET + 2 * np.pi * (np.arange(WALL_RAYS) + 0.5) / WALL_RAYS  # sector centres, as sector_of
+    t1, t2 = orthonormal_basis(n_k)
+    d = np.cos(phi)[None, :, None] * t1[:, None] + np.sin(phi)[None, :, None] * t2[:, None]
+    origin = p_k + (WALL_LIFT * reach)[:, None] * n_k
+    hits = caster.intersect(np.repeat(origin, WALL_RAYS, axis=0), d.reshape(-1, 3),
+                            t_max=np.repeat(reach, WALL_RAYS))
+    return hits.t.reshape(K, WALL_RAYS).astype(np.float32)
+
+
+def beyond_wall(wall: np.ndarray, delta: np.ndarray, n_k: np.ndarray) -> np.ndarray:
+    """(m,) bool: offsets ``delta`` from records (normals n_k, sector walls ``wall`` (m, S)) lie past a wall."""
+    sector = sector_of(delta, n_k)
+    planar = delta - np.einsum("ij,ij->i", delta, n_k)[:, None] * n_k
+    rows = np.arange(len(delta))
+    # A planar wall at distance d is met by the ray of the sector nearest its perpendicular at
+    # no more than d / cos(half a sector): the nearest wall of the sector and its neighbours,
+    # shortened by that factor, bounds d from below, so nothing behind a wall slips through.
+    near = np.minimum(np.minimum(wall[rows, sector], wall[rows, (sector + 1) % WALL_RAYS]),
+                      wall[rows, (sector - 1) % WALL_RAYS])
+    # WALL_MARGIN keeps the bound off exact ties with samples at the wall's own distance.
+    return np.linalg.norm(planar, axis=1) > near * (np.cos(np.pi / WALL_RAYS) * (1.0 - WALL_MARGIN))
 
 
 def neighbour_clamp(p: np.ndarray, R: np.ndarray) -> np.ndarray:

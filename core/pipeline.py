@@ -196,6 +196,8 @@ def _bake(scene: Scene, settings: BakeSettings, progress: Progress, executor: Ex
             _put(store, "cache", cache_key, (base_cache, photon_map))
         if todo:
             density = PhotonDensity(photon_map) if len(photon_map) else None
+            if density is not None:  # hole records' gathering reads indirect light from this cache
+                density.records = base_cache
             for w in todo:
                 w.E_indirect, w.holes = indirect_at_texels(scene, caster(), density, base_cache, w, params,
                                                            settings, executor, progress, stats)
@@ -270,9 +272,10 @@ def build_cache(scene: Scene, caster, photon_map: PhotonMap, params: CacheParame
     progress.begin("Pass 2: irradiance cache")
     with stats.stage("cache"):
         density = PhotonDensity(photon_map)
-        cache, zones, build = generate_irradiance_cache(density, params, settings.seed, progress)
+        cache, zones, build = generate_irradiance_cache(density, params, settings.seed, progress, caster=caster())
         cache.R = neighbour_clamp(cache.p, cache.R)
-    stats.set(records=build.records, kd_queries=build.kd_queries, R_min=params.R_min, R_max=params.R_max)
+    stats.set(records=build.records, kd_queries=build.kd_queries, R_min=params.R_min, R_max=params.R_max,
+              wall_rays=build.wall_rays)
     if settings.refine:
         from .refinement import refine_records  # pass 3
 
@@ -367,7 +370,7 @@ def interpolate_filling_holes(scene, caster, density: PhotonDensity, cache: Irra
         cand_p, cand_n = points.p[holes], points.n_shading[holes]
         new, zones, _ = place_records(density, cand_p, cand_n, np.zeros(len(holes)), np.zeros((len(holes), 3)),
                                       params, np.random.default_rng([settings.seed, 3, round_]),
-                                      candidate_is_photon=False, existing=cache)
+                                      candidate_is_photon=False, existing=cache, caster=caster)
         if settings.refine and len(new):
             from .refinement import refine_records
 

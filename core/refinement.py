@@ -25,23 +25,23 @@ from .albedo import albedo as albedo_at
 from .direct import direct_irradiance
 from .executor import Executor, Progress
 from .hemisphere import Hemisphere, gradient_to_world, local_frames, to_local
-from .irradiance_cache import CacheParameters, IrradianceCache, PhotonDensity, Zones, neighbour_clamp
+from .interpolation import CacheLookup
+from .irradiance_cache import (CacheParameters, IrradianceCache, PhotonDensity, Zones, neighbour_clamp,
+                               wall_distances)
 from .rays import RayCaster
 from .scene import Scene
 from .settings import BakeSettings
 
 RECORD_BATCH = 256
 """Records refined per chunk: ~75k cells, a few tenths of a second of work."""
-NEAREST_CANDIDATES = 8
-PROBE_RAYS = 16
-"""Real rays per record cast before reuse, stratified over the hemisphere (they fill their cells)."""
 VIRTUAL_RADIUS = 0.5
 """Photons lend virtual rays only within this fraction of the probe rays' harmonic-mean distance."""
 VISIBILITY_SECTORS = 8
+"""Azimuth sectors of a zone whose visibility from the record is tested with one ray each."""
 VISIBILITY_LIFT = 0.02
 """Zone-visibility segments run this fraction of their length above the surface."""
-"""Azimuth sectors of a zone whose visibility from the record is tested with one ray each."""
-"""Photons examined around a real ray's hit to find the nearest one on the side the ray sees."""
+PROBE_RAYS = 16
+"""Real rays per record cast before reuse, stratified over the hemisphere (they fill their cells)."""
 
 
 def refine_records(scene: Scene, caster: RayCaster, density: PhotonDensity, cache: IrradianceCache, zones: Zones,
@@ -53,8 +53,12 @@ def refine_records(scene: Scene, caster: RayCaster, density: PhotonDensity, cach
         return cache, {}
     H = Hemisphere(settings.hemisphere_theta, settings.hemisphere_phi)
     photons = density.photons
-    E_indirect = photons.E_indirect()
-    E_total = photons.E_direct.astype(np.float64) + E_indirect
+    E_total = photons.E_direct.astype(np.float64) + photons.E_indirect()
+    # Indirect irradiance at real rays' hits: the records gathered so far (gradient-free), built once.
+    if density.records_lookup is None:
+        density.records_lookup = CacheLookup(density.records if density.records is not None else cache,
+                                             params.a, use_gradients=False)
+    lookup = density.records_lookup
     radiance_out = photons.albedo.astype(np.float64) * E_total / np.pi  # leaving each photon, W/m^2/sr
     serial = caster.serial()
     batches = [slice(s, min(s + RECORD_BATCH, K)) for s in range(0, K, RECORD_BATCH)]
@@ -63,8 +67,8 @@ def refine_records(scene: Scene, caster: RayCaster, density: PhotonDensity, cach
     def run(job):
         index, s = job
         rng = np.random.default_rng([settings.seed, stream, index])
-        out = _refine_batch(scene, serial, density, radiance_out, E_indirect, cache.p[s], cache.n[s],
-                            *zones.batch(s), H, settings.reuse_photon_paths, rng)
+        out = _refine_batch(scene, serial, density, radiance_out, lookup, cache.p[s], cache.n[s],
+                            *zones.batch(s), H, settings.reuse_photon_paths, rng, 1e-3 * params.a * params.R_min)
         done[0] += 1
         if progress is not None:
             progress.update(done[0] / len(batches))
@@ -81,6 +85,9 @@ def refine_records(scene: Scene, caster: RayCaster, density: PhotonDensity, cach
             counters[key] += r[key]
     refined.refined[:] = True
     refined.R = neighbour_clamp(refined.p, refined.R)
+    # The zones changed size: find their walls again (one ray per sector and record).
+    refined.wall = wall_distances(caster, refined.p, refined.n, params.a * refined.R)
+    counters["refine_wall_rays"] = refined.wall.size
     refined.grad_t, refined.grad_r = limit_gradients(refined.E, refined.grad_t, refined.grad_r, params.a * refined.R)
     caster.rays_cast += counters["refine_rays_cast"] + counters["refine_shadow_rays"]
     return refined, counters
@@ -105,8 +112,9 @@ def limit_gradients(E: np.ndarray, grad_t: np.ndarray, grad_r: np.ndarray, zone_
 
 
 def _refine_batch(scene: Scene, caster: RayCaster, density: PhotonDensity, radiance_out: np.ndarray,
-                  E_indirect: np.ndarray, p_k: np.ndarray, n_k: np.ndarray, zone_lengths: np.ndarray,
-                  zone_photons: np.ndarray, H: Hemisphere, reuse: bool, rng: np.random.Generator) -> dict:
+                  lookup: CacheLookup, p_k: np.ndarray, n_k: np.ndarray, zone_lengths: np.ndarray,
+                  zone_photons: np.ndarray, H: Hemisphere, reuse: bool, rng: np.random.Generator,
+                  r_floor: float) -> dict:
     B, C = len(p_k), H.cells
     t1, t2, n = local_frames(n_k)
     visibility_rays = 0
@@ -127,7 +135,7 @@ def _refine_batch(scene: Scene, caster: RayCaster, density: PhotonDensity, radia
     if reuse:
         probe_cells = np.unique(np.linspace(0, C - 1, PROBE_RAYS).astype(np.int64))
         cells = (np.arange(B)[:, None] * C + probe_cells[None, :]).ravel()
-        inv_sum, inv_n, shadow = _cast_real(scene, caster, density, E_indirect, p_k, n, t1, t2, H, cells,
+        inv_sum, inv_n, shadow = _cast_real(scene, caster, lookup, p_k, n, t1, t2, H, cells,
                                             L_sum, rot_sum, count, r_min, rng)
         probe_rays, probe_shadow = len(cells), shadow
         inv_d_sum += inv_sum
@@ -179,7 +187,7 @@ def _refine_batch(scene: Scene, caster: RayCaster, density: PhotonDensity, radia
 
     # -- real rays for the cells no virtual ray reached (Figure 4c)
     empty = np.flatnonzero(count == 0)
-    inv_sum, inv_n, shadow_rays = _cast_real(scene, caster, density, E_indirect, p_k, n, t1, t2, H, empty,
+    inv_sum, inv_n, shadow_rays = _cast_real(scene, caster, lookup, p_k, n, t1, t2, H, empty,
                                              L_sum, rot_sum, count, r_min, rng)
     inv_d_sum += inv_sum
     inv_d_count += inv_n
@@ -188,7 +196,10 @@ def _refine_batch(scene: Scene, caster: RayCaster, density: PhotonDensity, radia
     # -- irradiance, gradients and R_k from the cells
     L_cell = (L_sum / np.maximum(count, 1)[:, None]).reshape(B, C, 3)
     rot_cell = (rot_sum / np.maximum(count, 1)[:, None]).reshape(B, C, 3)
-    E, g_r, g_t = H.irradiance_and_gradients(L_cell, r_min.reshape(B, C), rot_cell)
+    # A hit at (nearly) zero distance would make the translational gradient overflow: no cell is
+    # nearer than a thousandth of the smallest zone (gradient limiting then caps what is left).
+    r_cell = np.maximum(r_min.reshape(B, C), r_floor)
+    E, g_r, g_t = H.irradiance_and_gradients(L_cell, r_cell, rot_cell)
     R = np.divide(inv_d_count, inv_d_sum, out=np.full(B, np.inf), where=inv_d_sum > 0)
     return {
         "E": np.maximum(E, 0.0),
@@ -205,7 +216,7 @@ def _refine_batch(scene: Scene, caster: RayCaster, density: PhotonDensity, radia
     }
 
 
-def _cast_real(scene, caster, density, E_indirect, p_k, n, t1, t2, H: Hemisphere, cells: np.ndarray,
+def _cast_real(scene, caster, lookup, p_k, n, t1, t2, H: Hemisphere, cells: np.ndarray,
                L_sum, rot_sum, count, r_min, rng):
     """Cast one real ray through each given cell (flat record*C + cell) and add it to the cells.
 
@@ -215,14 +226,15 @@ def _cast_real(scene, caster, density, E_indirect, p_k, n, t1, t2, H: Hemisphere
     rec = cells // C
     w_local = H.sample_cells(cells % C, rng.random((len(cells), 2)))
     d_world = w_local[:, :1] * t1[rec] + w_local[:, 1:2] * t2[rec] + w_local[:, 2:3] * n[rec]
+    # Hits are measured from the origin pushed off the record's surface: add t to that origin.
+    origin = caster.offset_origins(p_k[rec], n[rec], d_world)
     hits = caster.intersect(p_k[rec], d_world, normals=n[rec])
     L = np.zeros((len(cells), 3))
     hit = hits.hit
     shadow_rays = 0
     if hit.any():
-        L[hit], shadow_rays = _radiance_at_hits(scene, caster, density, E_indirect, hits.triangle[hit],
-                                                hits.barycentric[hit],
-                                                p_k[rec[hit]] + d_world[hit] * hits.t[hit, None], d_world[hit], rng)
+        L[hit], shadow_rays = _radiance_at_hits(scene, caster, lookup, hits.triangle[hit], hits.barycentric[hit],
+                                                origin[hit] + d_world[hit] * hits.t[hit, None], d_world[hit], rng)
     _accumulate(L_sum, rot_sum, count, r_min, cells, L, w_local, hits.t, B * C)
     finite = np.isfinite(hits.t)
     inv_sum = np.bincount(rec[finite], weights=1.0 / np.maximum(hits.t[finite], 1e-300), minlength=B)
@@ -288,30 +300,25 @@ def _accumulate_weighted(L_sum, rot_sum, count, r_min, cell, L, w_local, dist, i
     np.minimum.at(r_min, cell, dist)
 
 
-def _radiance_at_hits(scene: Scene, caster: RayCaster, density: PhotonDensity, E_indirect: np.ndarray,
-                      triangle: np.ndarray, barycentric: np.ndarray, q: np.ndarray, direction: np.ndarray,
-                      rng: np.random.Generator) -> np.ndarray:
+def _radiance_at_hits(scene: Scene, caster: RayCaster, lookup: CacheLookup, triangle: np.ndarray,
+                      barycentric: np.ndarray, q: np.ndarray, direction: np.ndarray, rng: np.random.Generator
+                      ) -> tuple[np.ndarray, int]:
     """Radiance toward the ray: albedo at the hit x (E_direct + E_indirect) / pi.
 
-    E_indirect is the nearest photon's ([Chr99]), taken among the photons on the
-    side of the surface the ray arrives from. E_direct is computed at the hit
-    itself with one shadow-ray sample per light: the nearest photon's direct
+    E_indirect is pass 2's cache interpolated at the hit (Equation 3). The paper
+    takes the nearest photon's stored irradiance, which is that same interpolation
+    at the photon ([Chr99]); interpolating at the hit itself respects the records'
+    walls, where the nearest photon may lie on the lit side of a thin wall for a
+    hit in the dark room behind it (tests/test_stability.py). E_direct is computed
+    at the hit with one shadow-ray sample per light: the nearest photon's direct
     irradiance is biased toward the denser, brighter side wherever direct light
     varies fast (measured +21 % on the Cornell floor, lit mostly by the ceiling's
     hot spot above the point light), and one shadow ray costs less than the
     gathering ray that found the hit.
     """
-    k = min(NEAREST_CANDIDATES, len(density.p))
-    _, idx = density.tree.query(q, k=k)
-    idx = idx.reshape(len(q), k)
-    idx = np.minimum(idx, len(density.p) - 1)
-    facing = np.einsum("mkj,mj->mk", density.n[idx], direction) < 0
-    nearest = idx[np.arange(len(q)), facing.argmax(axis=1)]
-    # A side no nearby photon reached (the inside of a closed box, the back of a wall) gets no
-    # indirect light: falling back to a photon of the other side leaks light through the surface.
-    E_photon = np.where(facing.any(axis=1)[:, None], E_indirect[nearest], 0.0)
     n_hit = scene.geometry.face_normals()[triangle]
     n_hit = np.where((np.einsum("ij,ij->i", n_hit, direction) > 0)[:, None], -n_hit, n_hit)
+    E_indirect, _ = lookup.irradiance(q, n_hit)
     direct = direct_irradiance(scene, caster, q, n_hit, n_hit, 1, rng)
     rho = albedo_at(scene, triangle, barycentric).astype(np.float64)
-    return rho * (direct.E + E_photon) / np.pi, sum(direct.shadow_rays.values())
+    return rho * (direct.E + E_indirect) / np.pi, sum(direct.shadow_rays.values())

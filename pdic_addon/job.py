@@ -21,6 +21,7 @@ from pathlib import Path
 import bpy
 import numpy as np
 
+from ..core import bake_cache
 from ..core import manifest as core_manifest
 from ..core import unwrap
 from ..core.executor import Progress
@@ -170,6 +171,8 @@ class BakeJob:
         self.explicit_objects = list(objects) if objects is not None else None
         self.selected_only = selected_only
         self.cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+        # Resolved here, on the main thread: compute() runs in a worker and must not touch bpy.
+        self.bake_cache_dir = preferences.cache_dir(sub="bake_cache")
         self.txn = Transaction()
         self.warnings: list[str] = []
         self.timings: dict[str, float] = {}
@@ -267,7 +270,7 @@ class BakeJob:
                 result = unwrap.unwrap(tris.positions * scale, tris.triangles, res, s.padding,
                                        cache_dir=self.cache_dir, triangle_polygon=tris.polygon)
                 uv_loop, conflicts = unwrap.loop_uvs(result.uv, tris.loops, tris.loop_count)
-            except ValueError as e:
+            except (ValueError, RuntimeError) as e:  # bad geometry, or xatlas failing to pack
                 raise BakeError(f"cannot unwrap mesh {mesh.name!r} (object {users[0].name!r}): {e}") from e
             if conflicts:
                 self.warnings.append(f"mesh {mesh.name!r}: {conflicts} polygon corners got split UVs")
@@ -304,7 +307,11 @@ class BakeJob:
         from ..core import pipeline  # imported on first bake: keeps add-on registration light
 
         start = time.perf_counter()
-        self.result = pipeline.bake(self.extraction.scene, self.settings, progress)
+        # Re-bakes of an unchanged scene reuse the photon map and cache (content-keyed, on disk
+        # under the preferences' cache folder, pruned to its budget; not held in Blender's memory).
+        store = bake_cache.BakeCache(self.bake_cache_dir, memory=False)
+        self.result = pipeline.bake(self.extraction.scene, self.settings, progress, cache=store)
+        store.prune()
         self.timings["compute"] = time.perf_counter() - start
 
     # ----------------------------------------------------------------- 3. finish

@@ -65,7 +65,10 @@ def threads(prefs=None) -> int:
 
 
 def default_cache_dir() -> Path:
-    """The extension's user folder (``.../extensions/.user/<repo>/pdic/``), else ``<tmp>/pdic_cache``."""
+    """``$PDIC_CACHE_DIR`` if set, else the extension's user folder (``.../extensions/.user/<repo>/pdic/``),
+    else ``<tmp>/pdic_cache`` (scripts and tests running from a checkout)."""
+    if os.environ.get("PDIC_CACHE_DIR"):
+        return Path(os.environ["PDIC_CACHE_DIR"])
     try:
         return Path(bpy.utils.extension_path_user(ROOT_PACKAGE, create=True))
     except (ValueError, RuntimeError, AttributeError):  # not installed as an extension (tests, scripts)

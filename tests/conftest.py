@@ -16,6 +16,12 @@ SHARED = ROOT.parent / "shared"
 SCENES = SHARED / "scenes"
 
 
+@pytest.fixture(autouse=True)
+def isolated_cache(tmp_path, monkeypatch):
+    """Each test gets its own cache folder: no unwrap or bake-cache entry leaks between tests or runs."""
+    monkeypatch.setenv("PDIC_CACHE_DIR", str(tmp_path / "pdic_cache"))
+
+
 @pytest.fixture
 def blender():
     """A factory-fresh Blender (bpy wheel), reset again after the test."""

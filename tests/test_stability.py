@@ -156,14 +156,8 @@ def test_no_direct_light_passes_a_1_mm_wall(quality):
         assert result.direct[dark].max() == 0.0
 
 
-# Known leaks (open; see the closing note of this session):
-# PREVIEW - Ward interpolation: left-floor records whose zone a R_k crosses the 1 mm wall light the
-#   first two texel columns of the right floor (same plane, same normal; the in-front test cannot
-#   tell). A per-sector wall distance per record (8 tangent-plane rays) removes it but was not yet
-#   stable across scales (one texel's hole decision flips at scale 1e-3).
-# FINAL - refinement._radiance_at_hits takes the nearest photon at any distance: a gathering ray in
-#   the dark room that hits its ceiling gets the lit room's ceiling photons.
-@pytest.mark.xfail(strict=True, reason="indirect light leaks through thin walls (see comment above)")
+# Thin walls: records find the walls in their tangent plane (irradiance_cache.wall_distances) and are
+# not used past them; gathering reads indirect light from those records, not from the nearest photon.
 @pytest.mark.parametrize("quality", ["PREVIEW", "FINAL"])
 def test_no_indirect_light_leaks_through_a_1_mm_wall(quality):
     result = _bake_two_rooms(quality)

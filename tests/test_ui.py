@@ -2,6 +2,7 @@
 (re)registration, panel drawing, the cache overlay's batches and the preferences."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import threading
 from types import SimpleNamespace
@@ -622,6 +623,8 @@ def test_preferences_thread_count_reaches_the_executor(addon, blender, tmp_path)
         addon.threads = threads
         settings = operators._settings(blender.context)
         assert settings.threads == threads
+        # A seed of its own keeps the second run from reusing the first one's cached photon map.
+        settings = dataclasses.replace(settings, seed=threads)
         job = job_module.BakeJob(blender.context, settings)
         job.prepare()
         seen = set()
