@@ -173,6 +173,23 @@ def _assemble(waves: list, count: int) -> PhotonMap:
     return pm
 
 
+def release_free_memory() -> None:
+    """Hand memory freed by the tracing threads back to the operating system (glibc only).
+
+    Each worker thread allocates its batches' temporaries in its own malloc arena, and
+    glibc keeps freed arena memory for reuse: after tracing 4M photons on two threads
+    the process held 780 to 1040 MB resident for the same 405 MB photon map, depending
+    on how the threads interleaved. ``malloc_trim(0)`` returns the free pages; on other
+    C libraries (macOS, Windows) this does nothing.
+    """
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+
+
 def concatenate(batches: list[PhotonMap], emitted: int) -> PhotonMap:
     """Stitch batches into one map, offsetting each batch's path links.
 
@@ -238,6 +255,7 @@ def trace_photons(scene: Scene, caster: RayCaster, photons: int, max_bounces: in
     results = executor.map(run, list(enumerate(batches)))
     caster.rays_cast += sum(r.rays for r in results)
     photon_map = concatenate([r.photons for r in results], plan.total)
+    release_free_memory()
     stats = PhotonTraceStats(plan.total, len(photon_map), sum(r.rays for r in results),
                              sum(r.escaped for r in results), plan.per_light())
     return photon_map, stats
