@@ -17,7 +17,7 @@ tables   Table 1 (per-pass times, photons, bounces, records) and Table 2 (rays a
          standard final gathering vs photon-path reuse) on Cornell, Sponza, the occluded building.
 figure5  [Chr99] (irradiance at photons, nearest-photon lookup) vs the pass-2 preview: time, error.
 scaling  photons 50k..4M and texels 64^2..2048^2, time and peak memory (one subprocess per
-         point, ru_maxrss), and a linear cost model per pass.
+         point, VmHWM), and a linear cost model per pass.
 rebake   an unchanged re-bake and a one-object resolution change with a BakeCache: time ratio.
 """
 from __future__ import annotations
