@@ -31,6 +31,19 @@ def blender():
     bpy.ops.wm.read_factory_settings(use_empty=True)
 
 
+@pytest.fixture(scope="module")
+def registered():
+    """The add-on registered for a test module, and cleanly unregistered after it."""
+    import bpy
+
+    from pdic import pdic_addon
+
+    pdic_addon.register()
+    yield
+    pdic_addon.unregister()
+    assert not hasattr(bpy.types.Scene, "pdic")
+
+
 @pytest.fixture
 def rng():
     import numpy as np

@@ -19,15 +19,6 @@ RES = 32
 OUTPUT = "pdic_lightmaps"
 
 
-@pytest.fixture(scope="module")
-def registered():
-    from pdic import pdic_addon
-
-    pdic_addon.register()
-    yield
-    pdic_addon.unregister()
-
-
 # --------------------------------------------------------------------------- scene
 def _mesh(bpy, name, verts, faces=(), edges=()):
     mesh = bpy.data.meshes.new(name)

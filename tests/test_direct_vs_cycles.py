@@ -39,19 +39,6 @@ FLAT_VARIATION = 0.10
 FLAT_BOUND, BAKED_BOUND = 0.02, 0.05
 
 
-# --------------------------------------------------------------------------- fixtures
-@pytest.fixture(scope="module")
-def registered():
-    import bpy
-
-    from pdic import pdic_addon
-
-    pdic_addon.register()
-    yield
-    pdic_addon.unregister()
-    assert not hasattr(bpy.types.Scene, "pdic")
-
-
 # --------------------------------------------------------------------------- scene
 def _material(bpy, name, color, emission=None, strength=0.0):
     mat = bpy.data.materials.new(name)

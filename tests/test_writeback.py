@@ -16,19 +16,6 @@ from snapshot import snapshot
 RES = 32
 
 
-# --------------------------------------------------------------------------- registration
-@pytest.fixture(scope="module")
-def registered():
-    import bpy
-
-    from pdic import pdic_addon
-
-    pdic_addon.register()
-    yield
-    pdic_addon.unregister()
-    assert not hasattr(bpy.types.Scene, "pdic")
-
-
 # --------------------------------------------------------------------------- scene
 def _principled(bpy, name, color):
     mat = bpy.data.materials.new(name)
