@@ -51,6 +51,8 @@ WALL_LIFT = 0.05
 """Height of the wall rays above the surface, as a fraction of the zone radius."""
 WALL_MARGIN = 1e-3
 """Relative margin that keeps the wall bound off exact ties with grid-aligned texel samples."""
+FAR_WALL = 1e6
+"""A sector ray that hit nothing stands in as a point this many times its neighbour's distance away."""
 SECTOR_OFFSET = 0.3819660112501051
 """Sector grid rotation (radians, 1/phi^2): boundaries and rays never align with axis-aligned grids,
 where texel samples would sit exactly on a boundary and float noise would pick the sector."""
@@ -352,17 +354,35 @@ def wall_distances(caster, p_k: np.ndarray, n_k: np.ndarray, reach: np.ndarray) 
 
 
 def beyond_wall(wall: np.ndarray, delta: np.ndarray, n_k: np.ndarray) -> np.ndarray:
-    """(m,) bool: offsets ``delta`` from records (normals n_k, sector walls ``wall`` (m, S)) lie past a wall."""
-    sector = sector_of(delta, n_k)
-    planar = delta - np.einsum("ij,ij->i", delta, n_k)[:, None] * n_k
+    """(m,) bool: offsets ``delta`` from records (normals n_k, sector walls ``wall`` (m, S)) lie past a wall.
+
+    The record sees, in its tangent plane, the star polygon through its sector rays' hits:
+    a point between two neighbouring rays is past the wall if it lies beyond the segment
+    joining their hits (a ray that hit nothing stands in with a far point). The segment
+    follows a straight wall whatever its angle to the rays, so directions parallel to a
+    wall keep their reach, and nothing behind a wall slips between two rays.
+    """
+    t1, t2 = orthonormal_basis(n_k)
+    x = np.einsum("ij,ij->i", delta, t1)
+    y = np.einsum("ij,ij->i", delta, t2)
+    turn = np.mod((np.arctan2(y, x) - SECTOR_OFFSET) / (2 * np.pi), 1.0) * WALL_RAYS - 0.5
+    i = np.floor(turn).astype(np.int64) % WALL_RAYS  # the ray just before the point's direction
+    j = (i + 1) % WALL_RAYS
     rows = np.arange(len(delta))
-    # A planar wall at distance d is met by the ray of the sector nearest its perpendicular at
-    # no more than d / cos(half a sector): the nearest wall of the sector and its neighbours,
-    # shortened by that factor, bounds d from below, so nothing behind a wall slips through.
-    near = np.minimum(np.minimum(wall[rows, sector], wall[rows, (sector + 1) % WALL_RAYS]),
-                      wall[rows, (sector - 1) % WALL_RAYS])
-    # WALL_MARGIN keeps the bound off exact ties with samples at the wall's own distance.
-    return np.linalg.norm(planar, axis=1) > near * (np.cos(np.pi / WALL_RAYS) * (1.0 - WALL_MARGIN))
+    t_i, t_j = wall[rows, i].astype(np.float64), wall[rows, j].astype(np.float64)
+    finite = np.isfinite(t_i) | np.isfinite(t_j)
+    far = FAR_WALL * np.where(np.isfinite(t_i), t_i, np.where(np.isfinite(t_j), t_j, 1.0))
+    t_i = np.where(np.isfinite(t_i), t_i, far) * (1.0 - WALL_MARGIN)
+    t_j = np.where(np.isfinite(t_j), t_j, far) * (1.0 - WALL_MARGIN)
+    a_i = SECTOR_OFFSET + 2 * np.pi * (i + 0.5) / WALL_RAYS
+    a_j = SECTOR_OFFSET + 2 * np.pi * (j + 0.5) / WALL_RAYS
+    hx_i, hy_i = t_i * np.cos(a_i), t_i * np.sin(a_i)
+    hx_j, hy_j = t_j * np.cos(a_j), t_j * np.sin(a_j)
+    ex, ey = hx_j - hx_i, hy_j - hy_i
+    # The origin and the point on opposite sides of the segment's line: the point is past the wall.
+    side_point = ex * (y - hy_i) - ey * (x - hx_i)
+    side_origin = ex * (0.0 - hy_i) - ey * (0.0 - hx_i)
+    return finite & (side_point * side_origin < 0)
 
 
 def neighbour_clamp(p: np.ndarray, R: np.ndarray) -> np.ndarray:
