@@ -325,12 +325,9 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
     return cache, zones, stats
 
 
-def sector_of(delta: np.ndarray, n_k: np.ndarray) -> np.ndarray:
-    """(m,) int azimuth sector (0..WALL_RAYS-1) of offsets ``delta`` (m, 3) in the tangent frames of ``n_k``."""
-    t1, t2 = orthonormal_basis(n_k)
-    angle = np.arctan2(np.einsum("ij,ij->i", delta, t2), np.einsum("ij,ij->i", delta, t1))
-    turn = np.mod((angle - SECTOR_OFFSET) / (2 * np.pi), 1.0)
-    return np.minimum((turn * WALL_RAYS).astype(np.int64), WALL_RAYS - 1)
+def _ray_angle(i) -> np.ndarray:
+    """Tangent-plane angle of wall ray ``i`` (0..WALL_RAYS-1), from t1 of the record's frame."""
+    return SECTOR_OFFSET + 2 * np.pi * (np.asarray(i) + 0.5) / WALL_RAYS
 
 
 def wall_distances(caster, p_k: np.ndarray, n_k: np.ndarray, reach: np.ndarray) -> np.ndarray:
@@ -344,7 +341,7 @@ def wall_distances(caster, p_k: np.ndarray, n_k: np.ndarray, reach: np.ndarray) 
     ``reach`` (K,); texels and photons past a sector's wall are not the record's.
     """
     K = len(p_k)
-    phi = SECTOR_OFFSET + 2 * np.pi * (np.arange(WALL_RAYS) + 0.5) / WALL_RAYS  # sector centres, as sector_of
+    phi = _ray_angle(np.arange(WALL_RAYS))
     t1, t2 = orthonormal_basis(n_k)
     d = np.cos(phi)[None, :, None] * t1[:, None] + np.sin(phi)[None, :, None] * t2[:, None]
     origin = p_k + (WALL_LIFT * reach)[:, None] * n_k
@@ -374,8 +371,7 @@ def beyond_wall(wall: np.ndarray, delta: np.ndarray, n_k: np.ndarray) -> np.ndar
     far = FAR_WALL * np.where(np.isfinite(t_i), t_i, np.where(np.isfinite(t_j), t_j, 1.0))
     t_i = np.where(np.isfinite(t_i), t_i, far) * (1.0 - WALL_MARGIN)
     t_j = np.where(np.isfinite(t_j), t_j, far) * (1.0 - WALL_MARGIN)
-    a_i = SECTOR_OFFSET + 2 * np.pi * (i + 0.5) / WALL_RAYS
-    a_j = SECTOR_OFFSET + 2 * np.pi * (j + 0.5) / WALL_RAYS
+    a_i, a_j = _ray_angle(i), _ray_angle(j)
     hx_i, hy_i = t_i * np.cos(a_i), t_i * np.sin(a_i)
     hx_j, hy_j = t_j * np.cos(a_j), t_j * np.sin(a_j)
     ex, ey = hx_j - hx_i, hy_j - hy_i

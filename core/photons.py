@@ -196,6 +196,8 @@ def concatenate(batches: list[PhotonMap], emitted: int) -> PhotonMap:
     Field by field, releasing each batch's copy as soon as it is stitched, so the
     peak is the map plus one field of the batches rather than two whole maps.
     """
+    if not batches:
+        return PhotonMap.empty(emitted)
     sizes = [len(b) for b in batches]
     starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
     total = int(sum(sizes))
@@ -213,7 +215,7 @@ def concatenate(batches: list[PhotonMap], emitted: int) -> PhotonMap:
                 value = np.where(value >= 0, value + start, -1).astype(np.int32)
             parts.append(value)
             setattr(b, f.name, None)
-        columns[f.name] = np.concatenate(parts) if parts else _allocate(0)[[x.name for x in fields(PhotonMap)].index(f.name)]
+        columns[f.name] = np.concatenate(parts)
         del parts
     return PhotonMap(**columns, emitted=emitted)
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from . import texels as texel_stage
 from .bake_cache import BakeCache, target_key, transport_key
@@ -26,6 +27,7 @@ from .irradiance_cache import (CacheParameters, IrradianceCache, PhotonDensity, 
                                neighbour_clamp, place_records)
 from .photons import PhotonMap, trace_photons
 from .rays import RayCaster
+from .refinement import refine_records
 from .scene import Scene, SceneError
 from .settings import BakeSettings
 from .stats import BakeStats
@@ -277,15 +279,13 @@ def build_cache(scene: Scene, caster, photon_map: PhotonMap, params: CacheParame
     stats.set(records=build.records, kd_queries=build.kd_queries, R_min=params.R_min, R_max=params.R_max,
               wall_rays=build.wall_rays)
     if settings.refine:
-        from .refinement import refine_records  # pass 3
-
         progress.begin("Pass 3: refining records")
         with stats.stage("photon_direct"):
             photon_map.E_direct[:] = shade_direct(
                 scene, caster(), photon_map.p.astype(np.float64), photon_map.n.astype(np.float64),
                 photon_map.n.astype(np.float64), PHOTON_DIRECT_SAMPLES, settings.seed, _STREAM_PHOTON_DIRECT,
                 executor, progress)[0]
-        with stats.stage("refine"):  # noqa: SIM117 (stages are timed separately)
+        with stats.stage("refine"):
             cache, refine_counters = refine_records(scene, caster(), density, cache, zones, settings, params,
                                                     executor, progress)
         stats.add(**refine_counters)
@@ -372,8 +372,6 @@ def interpolate_filling_holes(scene, caster, density: PhotonDensity, cache: Irra
                                       params, np.random.default_rng([settings.seed, 3, round_]),
                                       candidate_is_photon=False, existing=cache, caster=caster)
         if settings.refine and len(new):
-            from .refinement import refine_records
-
             new, _ = refine_records(scene, caster, density, new, zones, settings, params, executor, progress,
                                     stream=20 + round_)
         hole_records += len(new)
@@ -383,8 +381,6 @@ def interpolate_filling_holes(scene, caster, density: PhotonDensity, cache: Irra
     unfilled = np.flatnonzero(w <= 0)
     if len(unfilled) and len(cache):
         # Last resort, counted in the stats: the nearest record's irradiance.
-        from scipy.spatial import cKDTree
-
         _, nearest = cKDTree(cache.p).query(points.p[unfilled])
         E[unfilled] = cache.E[nearest]
     return E, cache, hole_records, len(unfilled)

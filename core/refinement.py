@@ -226,9 +226,9 @@ def _cast_real(scene, caster, lookup, p_k, n, t1, t2, H: Hemisphere, cells: np.n
     rec = cells // C
     w_local = H.sample_cells(cells % C, rng.random((len(cells), 2)))
     d_world = w_local[:, :1] * t1[rec] + w_local[:, 1:2] * t2[rec] + w_local[:, 2:3] * n[rec]
-    # Hits are measured from the origin pushed off the record's surface: add t to that origin.
+    # Push the origins off the record's surface once; hit points are that origin plus t.
     origin = caster.offset_origins(p_k[rec], n[rec], d_world)
-    hits = caster.intersect(p_k[rec], d_world, normals=n[rec])
+    hits = caster.intersect(origin, d_world)
     L = np.zeros((len(cells), 3))
     hit = hits.hit
     shadow_rays = 0
