@@ -51,29 +51,26 @@ def markdown(results: dict) -> str:
                 out.append(_table(["PDIC", "photons", "error %", "PDIC s", "Cycles s at equal error", "speed-up"],
                                   [[r["method"], f"{r['photons']:,}", _f(100 * r["error"]), _f(r["pdic_seconds"]),
                                     _f(r["cycles_seconds_at_equal_error"]), f"{_f(r['speedup'])}x"] for r in sp]))
-        if e.get("pdic_512"):
-            thr = np.mean([r["texel_samples_per_second"] for r in e["cycles"] if not r["adaptive"]])
-            out.append(f"\nAt higher resolution (PDIC measured; Cycles' time = covered texels x spp / its measured "
-                       f"throughput of {_f(thr)} texel-samples/s, not measured):\n\n")
-            rows = []
-            fit = e.get("cycles_fit_indirect")
-            for r in e["pdic_512"]:
-                rows.append([f"PDIC {r['quality'].title()}", f"{r['photons']:,}", f"{r['resolution']}^2 x 8 objects",
-                             f"{r['texels_covered']:,}", _f(r["seconds"])])
-            out.append(_table(["method", "photons", "light maps", "covered texels", "seconds"], rows))
-            spp_for = {}
-            for row in e.get("speedup_indirect", []):
-                # spp Cycles needs for this error, by the spp fit err = k / sqrt(spp)
-                k = np.mean([c["error_indirect"] * np.sqrt(c["spp"]) for c in e["cycles"] if not c["adaptive"]])
-                spp_for[(row["method"], row["photons"])] = (k / row["error"]) ** 2
-            for r in e["pdic_512"]:
-                key = (f"PDIC {r['quality'].title()}", r["photons"])
-                if key in spp_for:
-                    t_cycles = r["texels_covered"] * spp_for[key] / thr
-                    out.append(f"\n- {key[0]} {key[1]:,} photons at {r['resolution']}^2: Cycles would need "
-                               f"~{_f(spp_for[key])} spp for the same indirect error (measured at 64^2) = "
-                               f"~{_f(t_cycles)} s, i.e. {_f(t_cycles / r['seconds'])}x PDIC's {_f(r['seconds'])} s.")
-            out.append("\n")
+        if e.get("pdic_512") and e.get("cycles_512"):
+            c = e["cycles_512"]
+            sp = e["speedup_512"]
+            res = c["resolution"]
+            out.append(f"\n### At {res}x{res} per object (8 objects), both measured\n\n"
+                       f"Cycles' error at {res}^2 is its noise (its estimator is unbiased): two {c['spp']}-spp "
+                       f"indirect bakes with different seeds, rms(b1 - b2) / sqrt 2 = "
+                       f"{_f(100 * c['error_indirect'])} % in {_f(c['seconds'])} s per bake; noise falls as "
+                       f"1/sqrt(spp) and time grows with spp, so equal error costs "
+                       f"{_f(c['seconds'])} s x (noise / error)^2. PDIC's error: its {res}^2 indirect maps "
+                       f"averaged over {res // e['resolution']}x{res // e['resolution']} blocks against the "
+                       f"{e['resolution']}^2 reference.\n\n")
+            out.append(_table(["PDIC", "photons", "seconds", "error indirect %", "Cycles spp at equal error",
+                               "Cycles s at equal error", "speed-up"],
+                              [[r["method"], f"{r['photons']:,}", _f(r["pdic_seconds"]), _f(100 * r["error"]),
+                                _f(r["cycles_spp_at_equal_error"]), _f(r["cycles_seconds_at_equal_error"]),
+                                f"{_f(r['speedup'])}x"] for r in sp["rows"]]))
+            out.append(f"\nAt the issue's target of {_f(100 * sp['target_error'])} % indirect error Cycles needs "
+                       f"~{_f(sp['cycles_spp_at_target'])} spp = ~{_f(sp['cycles_seconds_at_target'])} s at "
+                       f"{res}^2.\n")
     t = results.get("tables")
     if t:
         out.append("\n## Table 1: passes (Final quality, photon-path reuse on)\n\n")

@@ -63,6 +63,10 @@ REFERENCE_INDIRECT = REFERENCES / "cornell_point_64_16384_4_INDIRECT.npz"
 REFERENCE_DIRECT = REFERENCES / "cornell_point_64_256_4_DIRECT.npz"
 CORNELL_RES = 64
 CORNELL_BOUNCES = 4
+CYCLES_512_SPP = 16
+"""Samples of the two Cycles bakes at 512x512 whose difference gives Cycles' noise there."""
+TARGET_ERROR_512 = 0.05
+"""The issue's target: indirect error at which PDIC must be 50x faster than Cycles at 512x512."""
 
 
 # --------------------------------------------------------------------------- helpers
@@ -136,18 +140,61 @@ def section_errors(quick: bool) -> dict:
     out = dict(scene="cornell_point", resolution=CORNELL_RES, bounces=CORNELL_BOUNCES, pdic=pdic_runs,
                cycles=cycles_runs, reference_seconds=ref_seconds, reference_spp=16384)
     out.update(speedups(pdic_runs, cycles_runs))
-    # 512x512: PDIC time measured, Cycles time extrapolated from its measured throughput.
+    # 512x512, both sides measured. Cycles' error is pure noise (its estimator is unbiased),
+    # so two bakes with different seeds give it without a reference: rms(b1 - b2) / sqrt 2.
+    # PDIC's is measured against the 64^2 reference after an 8x8 box average of its 512^2
+    # maps (indirect light is smooth over a 64^2 texel; PDIC's error is low-frequency bias).
     res512 = 256 if quick else 512
-    _, scene512 = cornell_scene(res512)
+    objects512, scene512 = cornell_scene(res512)
     big = []
-    for quality, photons in ([("PREVIEW", 250_000), ("FINAL", 250_000)] if not quick else [("PREVIEW", 100_000)]):
+    for quality, photons in ([("PREVIEW", 250_000), ("FINAL", 250_000), ("FINAL", 1_000_000)]
+                             if not quick else [("PREVIEW", 100_000)]):
         result, seconds = timed(bake, scene512, preset(quality, photons=photons, max_bounces=CORNELL_BOUNCES))
-        big.append(dict(quality=quality, photons=photons, resolution=res512, seconds=seconds,
+        factor = res512 // CORNELL_RES
+        down = {n: block_average(result.indirect[n], result.centre_inside[n], factor) for n in ref_ind}
+        big.append(dict(method=f"PDIC {quality.title()}", quality=quality, photons=photons, resolution=res512,
+                        seconds=seconds, error_indirect=relative_rmse(down, ref_ind, masks),
                         texel_samples=result.stats["counters"]["texel_samples"],
                         texels_covered=result.stats["counters"]["texels_covered"]))
         log("errors 512", big[-1])
     out["pdic_512"] = big
+    spp = 4 if quick else CYCLES_512_SPP
+    bakes = [cycles_bake_full(objects512, "LightMap", res512, res512, {"INDIRECT"}, spp, seed=seed,
+                              diffuse_bounces=CORNELL_BOUNCES) for seed in (1, 2)]
+    noise = seed_noise(bakes[0], bakes[1])
+    cycles512 = dict(spp=spp, resolution=res512, seconds=float(np.mean([b.total_seconds for b in bakes])),
+                     error_indirect=noise, texel_samples_per_second=bakes[0].texel_samples_per_second())
+    out["cycles_512"] = cycles512
+    log("errors 512 cycles", cycles512)
+    rows = []
+    for r in big:  # Cycles' noise falls as 1/sqrt(spp) and its time grows linearly with spp
+        spp_equal = spp * (noise / r["error_indirect"]) ** 2
+        t_equal = cycles512["seconds"] * spp_equal / spp
+        rows.append(dict(method=r["method"], photons=r["photons"], error=r["error_indirect"],
+                         pdic_seconds=r["seconds"], cycles_spp_at_equal_error=spp_equal,
+                         cycles_seconds_at_equal_error=t_equal, speedup=t_equal / r["seconds"]))
+    target_spp = spp * (noise / TARGET_ERROR_512) ** 2
+    out["speedup_512"] = dict(rows=rows, target_error=TARGET_ERROR_512, cycles_spp_at_target=target_spp,
+                              cycles_seconds_at_target=cycles512["seconds"] * target_spp / spp)
     return out
+
+
+def block_average(image: np.ndarray, covered: np.ndarray, factor: int) -> np.ndarray:
+    """(H/f, W/f, C) mean of the covered texels of each f x f block (0 where none is covered)."""
+    h, w, c = image.shape
+    wts = covered.astype(np.float64).reshape(h // factor, factor, w // factor, factor)
+    img = (image * covered[..., None]).reshape(h // factor, factor, w // factor, factor, c)
+    total = wts.sum(axis=(1, 3))
+    return (img.sum(axis=(1, 3)) / np.maximum(total, 1e-30)[..., None]).astype(np.float32)
+
+
+def seed_noise(a, b) -> float:
+    """Relative RMS noise of one Cycles bake from two bakes with different seeds."""
+    names = list(a.images)
+    mask = {n: a.coverage[n] & b.coverage[n] for n in names}
+    d = np.concatenate([(a.images[n] - b.images[n])[mask[n]].ravel() for n in names])
+    mean = np.concatenate([(0.5 * (a.images[n] + b.images[n]))[mask[n]].ravel() for n in names]).mean()
+    return float(np.sqrt(np.mean(d ** 2) / 2.0) / max(mean, 1e-30))
 
 
 def speedups(pdic_runs: list, cycles_runs: list) -> dict:

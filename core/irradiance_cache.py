@@ -350,6 +350,18 @@ def wall_distances(caster, p_k: np.ndarray, n_k: np.ndarray, reach: np.ndarray) 
     return hits.t.reshape(K, WALL_RAYS).astype(np.float32)
 
 
+def wall_clearance(wall: np.ndarray) -> np.ndarray:
+    """(K,) radius around each record inside which no point is past any of its walls (inf: no wall).
+
+    The star polygon's edge between rays at distances r <= s, 2 pi / S apart, lies at least
+    r sin(2 pi / S) from the record when s >= r / (2 cos(2 pi / S)), always true for S >= 6;
+    so the disc of radius min(wall) (1 - WALL_MARGIN) sin(2 pi / S) is inside the polygon
+    and :func:`beyond_wall` need not be asked about points within it (most pairs).
+    """
+    nearest = np.min(np.asarray(wall, np.float64), axis=1) if wall.shape[1] else np.full(len(wall), np.inf)
+    return nearest * (1.0 - WALL_MARGIN) * np.sin(2 * np.pi / WALL_RAYS)
+
+
 def beyond_wall(wall: np.ndarray, delta: np.ndarray, n_k: np.ndarray) -> np.ndarray:
     """(m,) bool: offsets ``delta`` from records (normals n_k, sector walls ``wall`` (m, S)) lie past a wall.
 

@@ -39,6 +39,9 @@ PHOTON_DIRECT_SAMPLES = 2
 """Shadow-ray samples per photon for its direct irradiance (section 3.1); noise averages over cells."""
 HOLE_ROUNDS = 3
 """Rounds of hole records (section 3.4) before falling back to the nearest record."""
+FINE_ZONE_TEXELS = 4.0
+"""Texels whose smallest accepted zone of influence is narrower than this many texels are
+interpolated per sample rather than once at their centroid."""
 
 # Stream ids for per-chunk random generators.
 _STREAM_DIRECT, _STREAM_PHOTON_DIRECT, _STREAM_VALIDITY = 10, 11, 12
@@ -97,6 +100,8 @@ class _TargetWork:
     E_direct: np.ndarray | None = None
     E_indirect: np.ndarray | None = None
     holes: IrradianceCache | None = None
+    texel_size: float = 0.0
+    """World size of one of the target's texels (sqrt of its area per covered texel)."""
 
 
 def _bake(scene: Scene, settings: BakeSettings, progress: Progress, executor: Executor, stats: BakeStats,
@@ -130,7 +135,9 @@ def _bake(scene: Scene, settings: BakeSettings, progress: Progress, executor: Ex
                 cached = (points, rasters[0])
                 _put(store, "raster", key, cached)
                 rasterised += 1
-            work.append(_TargetWork(cached[0], cached[1], key))
+            covered = max(int(cached[1].coverage.sum()), 1)
+            texel_size = float(np.sqrt(scene.geometry.areas()[target.triangles].sum() / covered))
+            work.append(_TargetWork(cached[0], cached[1], key, texel_size=texel_size))
     rasters = [w.raster for w in work]
     stats.set(texel_samples=sum(len(w.points) for w in work),
               texels_covered=int(sum(r.coverage.sum() for r in rasters)), targets_rasterised=rasterised)
@@ -302,18 +309,53 @@ def indirect_at_texels(scene: Scene, caster: RayCaster, density: PhotonDensity |
         return E, IrradianceCache()
     progress.begin("Texel validity")
     with stats.stage("validity"):
-        stream = _stream_of(work.key)
-        inside, rays = inside_geometry(caster, scene.geometry.face_normals(), points.p, points.n_geometric,
-                                       np.random.default_rng([settings.seed, _STREAM_VALIDITY, stream]))
+        inside, rays = texel_validity(scene, caster, points, [settings.seed, _STREAM_VALIDITY, _stream_of(work.key)],
+                                      executor, progress)
     stats.add(texel_samples_inside_geometry=int(inside.sum()), validity_rays=rays)
     valid = np.flatnonzero(~inside)
     progress.begin("Interpolating the cache at texels")
     with stats.stage("interpolate"):
-        E_valid, full, hole_records, unfilled = interpolate_filling_holes(
-            scene, caster, density, cache, points.take(valid), params, settings, executor, progress)
-    stats.add(texel_samples_unfilled=unfilled)
-    E[valid] = E_valid
+        valid_points = points.take(valid)
+        merged, sample_to_point = valid_points.per_texel()  # inside samples are not averaged in
+        E_merged, full, hole_records, unfilled = interpolate_filling_holes(
+            scene, caster, density, cache, merged, params, settings, executor, progress)
+        E[valid] = E_merged[sample_to_point]
+        # Where a zone of influence spans few texels, Equation 3 changes inside a texel (zone
+        # edges are steps): there every sample gets its own lookup, as a 2x2 box filter would.
+        _, _, smallest = _lookup(full, params.a, settings.gradients, merged.p, merged.n_shading, executor,
+                                 progress, with_zone=True)
+        fine = np.flatnonzero((smallest < FINE_ZONE_TEXELS * work.texel_size)[sample_to_point])
+        if len(fine):
+            E_fine, w_fine = _lookup(full, params.a, settings.gradients, valid_points.p[fine],
+                                     valid_points.n_shading[fine], executor, progress)
+            covered = w_fine > 0
+            E[valid[fine[covered]]] = E_fine[covered]
+    stats.add(texel_points_interpolated=len(merged) + len(fine), texel_points_unfilled=unfilled)
     return E, full.take(slice(len(cache), None))
+
+
+def texel_validity(scene: Scene, caster: RayCaster, points, seed: list, executor: Executor,
+                   progress: Progress) -> tuple[np.ndarray, int]:
+    """Which texel samples lie inside closed geometry, chunked over the executor: ((n,) bool, rays cast)."""
+    n = len(points)
+    chunks = [slice(s, min(s + TEXEL_CHUNK, n)) for s in range(0, n, TEXEL_CHUNK)]
+    serial = caster.serial()
+    face_normals = scene.geometry.face_normals()
+    done = [0]
+
+    def run(job):
+        index, s = job
+        out = inside_geometry(serial, face_normals, points.p[s], points.n_geometric[s],
+                              np.random.default_rng([*seed, index]))
+        done[0] += 1
+        progress.update(done[0] / len(chunks))
+        return out
+
+    parts = executor.map(run, list(enumerate(chunks)))
+    rays = sum(r for _, r in parts)
+    caster.rays_cast += rays
+    inside = np.concatenate([i for i, _ in parts]) if parts else np.zeros(0, bool)
+    return inside, rays
 
 
 def shade_direct(scene: Scene, caster: RayCaster, p: np.ndarray, n_shading: np.ndarray, n_geometric: np.ndarray,
@@ -386,21 +428,23 @@ def interpolate_filling_holes(scene, caster, density: PhotonDensity, cache: Irra
     return E, cache, hole_records, len(unfilled)
 
 
-def _lookup(cache, a, gradients, p, n, executor: Executor, progress: Progress):
+def _lookup(cache, a, gradients, p, n, executor: Executor, progress: Progress, with_zone: bool = False):
+    """Equation 3 at points, chunked: (E, w_sum), or (E, w_sum, smallest zone) ``with_zone``."""
     lookup = CacheLookup(cache, a, gradients)
     chunks = [slice(s, min(s + TEXEL_CHUNK, len(p))) for s in range(0, len(p), TEXEL_CHUNK)]
     done = [0]
 
     def run(s):
-        out = lookup.irradiance(p[s], n[s])
+        out = lookup.irradiance_and_zone(p[s], n[s])
         done[0] += 1
         progress.update(done[0] / len(chunks))  # also where a cancel is noticed
         return out
 
     parts = executor.map(run, chunks)
     if not parts:
-        return np.zeros((0, 3)), np.zeros(0)
-    return np.concatenate([e for e, _ in parts]), np.concatenate([w for _, w in parts])
+        parts = [(np.zeros((0, 3)), np.zeros(0), np.zeros(0))]
+    out = tuple(np.concatenate([part[i] for part in parts]) for i in range(3))
+    return out if with_zone else out[:2]
 
 
 def _finite(image: np.ndarray, name: str) -> np.ndarray:

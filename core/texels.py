@@ -44,6 +44,41 @@ class TexelPoints:
     def take(self, index) -> "TexelPoints":
         return TexelPoints(*(getattr(self, f)[index] for f in self.__dataclass_fields__))
 
+    def per_texel(self) -> tuple["TexelPoints", np.ndarray]:
+        """One point per (target, texel, triangle): the weighted centroid of its samples.
+
+        Indirect light varies slowly across a texel, so Equation 3 at the centroid
+        stands for the mean over the texel's samples (gradients make it linear there)
+        at a quarter of the lookups. Samples of one triangle are merged only, so the
+        centroid stays on the surface. Returns (merged points, (n,) index of each
+        sample's merged point); weights add up, normals are re-normalised.
+        """
+        if len(self) == 0:
+            return self, np.zeros(0, np.int64)
+        key = np.stack([self.target.astype(np.int64), self.texel, self.triangle], axis=1)
+        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        inverse = inverse.ravel()
+        groups = len(first)
+        w = self.weight.astype(np.float64)
+        total = np.bincount(inverse, weights=w, minlength=groups)
+        # Equal weights stand in where a group's weights sum to zero, so the centroid stays finite.
+        w = np.where(total[inverse] > 0, w, 1.0)
+        total = np.bincount(inverse, weights=w, minlength=groups)
+
+        def mean(values):
+            cols = [np.bincount(inverse, weights=w * values[:, c], minlength=groups) / total
+                    for c in range(values.shape[1])]
+            return np.stack(cols, axis=1)
+
+        n_g = self.n_geometric[first]
+        n_s = mean(self.n_shading)
+        length = np.linalg.norm(n_s, axis=1, keepdims=True)
+        n_s = np.where(length > 1e-12, n_s / np.maximum(length, 1e-300), n_g)
+        merged = TexelPoints(mean(self.p), n_s, n_g, self.triangle[first], mean(self.barycentric),
+                             self.target[first], self.texel[first],
+                             np.bincount(inverse, weights=self.weight, minlength=groups).astype(np.float32))
+        return merged, inverse
+
 
 @dataclass(frozen=True)
 class TargetRaster:

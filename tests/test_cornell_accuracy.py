@@ -53,7 +53,7 @@ def test_preview_cache_is_within_15_percent_of_cycles_and_leaves_no_texel_dark(c
     _, err_indirect = _errors(result, direct, indirect, coverage)
     counters = result.stats["counters"]
     assert err_indirect <= 0.15
-    assert counters["texel_samples_unfilled"] == 0  # every texel outside geometry got a record
+    assert counters["texel_points_unfilled"] == 0  # every texel outside geometry got a record
     assert counters["records"] > 500 and "refine_cells" not in counters  # pass 3 skipped in Preview
 
 
