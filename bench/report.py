@@ -55,19 +55,20 @@ def markdown(results: dict) -> str:
             c = e["cycles_512"]
             sp = e["speedup_512"]
             res = c["resolution"]
-            out.append(f"\n### At {res}x{res} per object (8 objects), both measured\n\n"
+            out.append(f"\n### At {res}x{res} per object (8 objects), both measured per texel\n\n"
                        f"Cycles' error at {res}^2 is its noise (its estimator is unbiased): two {c['spp']}-spp "
-                       f"indirect bakes with different seeds, rms(b1 - b2) / sqrt 2 = "
-                       f"{_f(100 * c['error_indirect'])} % in {_f(c['seconds'])} s per bake; noise falls as "
+                       f"indirect bakes with different seeds give rms(b1 - b2) / sqrt 2 = "
+                       f"{_f(100 * c['error_indirect'])} % in {_f(c['seconds'])} s per bake. Noise falls as "
                        f"1/sqrt(spp) and time grows with spp, so equal error costs "
-                       f"{_f(c['seconds'])} s x (noise / error)^2. PDIC's error: its {res}^2 indirect maps "
-                       f"averaged over {res // e['resolution']}x{res // e['resolution']} blocks against the "
-                       f"{e['resolution']}^2 reference.\n\n")
-            out.append(_table(["PDIC", "photons", "seconds", "error indirect %", "Cycles spp at equal error",
-                               "Cycles s at equal error", "speed-up"],
+                       f"{_f(c['seconds'])} s x (noise / error)^2. PDIC's per-texel error is measured against the "
+                       f"mean of the two bakes with their known noise subtracted (E|PDIC - ref|^2 = error^2 + "
+                       f"noise^2 / 2); 'downsampled' is its {res // e['resolution']}x{res // e['resolution']} "
+                       f"block average against the {e['resolution']}^2 reference.\n\n")
+            out.append(_table(["PDIC", "photons", "seconds", "error indirect %", "downsampled %",
+                               "Cycles spp at equal error", "Cycles s at equal error", "speed-up"],
                               [[r["method"], f"{r['photons']:,}", _f(r["pdic_seconds"]), _f(100 * r["error"]),
-                                _f(r["cycles_spp_at_equal_error"]), _f(r["cycles_seconds_at_equal_error"]),
-                                f"{_f(r['speedup'])}x"] for r in sp["rows"]]))
+                                _f(100 * r["error_downsampled"]), _f(r["cycles_spp_at_equal_error"]),
+                                _f(r["cycles_seconds_at_equal_error"]), f"{_f(r['speedup'])}x"] for r in sp["rows"]]))
             out.append(f"\nAt the issue's target of {_f(100 * sp['target_error'])} % indirect error Cycles needs "
                        f"~{_f(sp['cycles_spp_at_target'])} spp = ~{_f(sp['cycles_seconds_at_target'])} s at "
                        f"{res}^2.\n")
@@ -107,8 +108,12 @@ def markdown(results: dict) -> str:
                          _f(100 * f["christensen_vs_preview_rmse"]) if "christensen_vs_preview_rmse" in f else "-"])
         out.append(_table(["scene", "photons", "pass 1 s", "[Chr99] s", "preview (pass 2 + lookup) s",
                            "[Chr99] error ind. %", "preview error ind. %", "difference %"], rows))
-        out.append("\nErrors only for Cornell (the scene with a Cycles reference); for the others, the relative RMS "
-                   "difference between the two.\n")
+        refs = t.get("references", {})
+        out.append("\nReferences: Cornell against the committed 16384-spp Cycles bake. "
+                   + " ".join(f"{n}: two {r['spp']}-spp Cycles INDIRECT bakes ({_f(r['seconds'])} s for both; "
+                              f"{_f(100 * r['noise_indirect'])} % noise each), errors with that noise subtracted "
+                              f"(E|x - ref|^2 = error^2 + noise^2 / 2)." for n, r in refs.items())
+                   + " 'difference' is the relative RMS difference between [Chr99] and the preview.\n")
     s = results.get("scaling")
     if s:
         out.append("\n## Scaling (Cornell, one process per point, peak RSS)\n\n")

@@ -63,9 +63,12 @@ REFERENCE_INDIRECT = REFERENCES / "cornell_point_64_16384_4_INDIRECT.npz"
 REFERENCE_DIRECT = REFERENCES / "cornell_point_64_256_4_DIRECT.npz"
 CORNELL_RES = 64
 CORNELL_BOUNCES = 4
-CYCLES_512_SPP = 16
+CYCLES_512_SPP = 64
 """Samples of the two Cycles bakes at 512x512 whose difference gives Cycles' noise there."""
 TARGET_ERROR_512 = 0.05
+"""The issue's target: indirect error at which PDIC must be 50x faster than Cycles at 512x512."""
+TABLE_REFERENCE_SPP = {"Sponza": 256, "Occluded": 1024}
+"""Samples of the two Cycles bakes that serve as the noise-corrected reference of each table scene."""
 """The issue's target: indirect error at which PDIC must be 50x faster than Cycles at 512x512."""
 
 
@@ -140,24 +143,12 @@ def section_errors(quick: bool) -> dict:
     out = dict(scene="cornell_point", resolution=CORNELL_RES, bounces=CORNELL_BOUNCES, pdic=pdic_runs,
                cycles=cycles_runs, reference_seconds=ref_seconds, reference_spp=16384)
     out.update(speedups(pdic_runs, cycles_runs))
-    # 512x512, both sides measured. Cycles' error is pure noise (its estimator is unbiased),
-    # so two bakes with different seeds give it without a reference: rms(b1 - b2) / sqrt 2.
-    # PDIC's is measured against the 64^2 reference after an 8x8 box average of its 512^2
-    # maps (indirect light is smooth over a 64^2 texel; PDIC's error is low-frequency bias).
+    # 512x512, both sides measured, per texel. Cycles' error is pure noise (its estimator is
+    # unbiased), so two bakes with different seeds give it without a reference: rms(b1 - b2) / sqrt 2.
+    # The same pair is PDIC's reference: E|PDIC - mean(b1, b2)|^2 = PDIC's error^2 + the pair's
+    # noise^2 / 2, and the second term is known from the pair, so it is subtracted.
     res512 = 256 if quick else 512
     objects512, scene512 = cornell_scene(res512)
-    big = []
-    for quality, photons in ([("PREVIEW", 250_000), ("FINAL", 250_000), ("FINAL", 1_000_000)]
-                             if not quick else [("PREVIEW", 100_000)]):
-        result, seconds = timed(bake, scene512, preset(quality, photons=photons, max_bounces=CORNELL_BOUNCES))
-        factor = res512 // CORNELL_RES
-        down = {n: block_average(result.indirect[n], result.centre_inside[n], factor) for n in ref_ind}
-        big.append(dict(method=f"PDIC {quality.title()}", quality=quality, photons=photons, resolution=res512,
-                        seconds=seconds, error_indirect=relative_rmse(down, ref_ind, masks),
-                        texel_samples=result.stats["counters"]["texel_samples"],
-                        texels_covered=result.stats["counters"]["texels_covered"]))
-        log("errors 512", big[-1])
-    out["pdic_512"] = big
     spp = 4 if quick else CYCLES_512_SPP
     bakes = [cycles_bake_full(objects512, "LightMap", res512, res512, {"INDIRECT"}, spp, seed=seed,
                               diffuse_bounces=CORNELL_BOUNCES) for seed in (1, 2)]
@@ -166,17 +157,53 @@ def section_errors(quick: bool) -> dict:
                      error_indirect=noise, texel_samples_per_second=bakes[0].texel_samples_per_second())
     out["cycles_512"] = cycles512
     log("errors 512 cycles", cycles512)
+    big = []
+    for quality, photons in ([("PREVIEW", 250_000), ("FINAL", 250_000), ("FINAL", 1_000_000)]
+                             if not quick else [("PREVIEW", 100_000)]):
+        result, seconds = timed(bake, scene512, preset(quality, photons=photons, max_bounces=CORNELL_BOUNCES))
+        factor = res512 // CORNELL_RES
+        down = {n: block_average(result.indirect[n], result.centre_inside[n], factor) for n in ref_ind}
+        big.append(dict(method=f"PDIC {quality.title()}", quality=quality, photons=photons, resolution=res512,
+                        seconds=seconds, error_indirect=noise_corrected_error(result.indirect, result.centre_inside,
+                                                                               bakes),
+                        error_indirect_downsampled=relative_rmse(down, ref_ind, masks),
+                        texel_samples=result.stats["counters"]["texel_samples"],
+                        texels_covered=result.stats["counters"]["texels_covered"]))
+        log("errors 512", big[-1])
+    out["pdic_512"] = big
     rows = []
     for r in big:  # Cycles' noise falls as 1/sqrt(spp) and its time grows linearly with spp
         spp_equal = spp * (noise / r["error_indirect"]) ** 2
         t_equal = cycles512["seconds"] * spp_equal / spp
         rows.append(dict(method=r["method"], photons=r["photons"], error=r["error_indirect"],
+                         error_downsampled=r["error_indirect_downsampled"],
                          pdic_seconds=r["seconds"], cycles_spp_at_equal_error=spp_equal,
                          cycles_seconds_at_equal_error=t_equal, speedup=t_equal / r["seconds"]))
     target_spp = spp * (noise / TARGET_ERROR_512) ** 2
     out["speedup_512"] = dict(rows=rows, target_error=TARGET_ERROR_512, cycles_spp_at_target=target_spp,
                               cycles_seconds_at_target=cycles512["seconds"] * target_spp / spp)
     return out
+
+
+def noise_corrected_error(images: dict, covered: dict, pair) -> float:
+    """Relative RMS error of E/pi ``images`` against two same-spp Cycles bakes, their noise removed.
+
+    E|x - mean(b1, b2)|^2 = error^2 + noise^2 / 2 and E|b1 - b2|^2 / 4 = noise^2 / 2, so the
+    second is subtracted from the first: a low-spp pair serves as an unbiased reference.
+    pair : two objects or dicts with ``images`` and ``coverage`` (name -> array).
+    """
+    a, b = (_bake_dict(p) for p in pair)
+    names = [n for n in a["images"] if n in images]
+    mask = {n: a["coverage"][n] & b["coverage"][n] & covered[n] for n in names}
+    ref = {n: 0.5 * (a["images"][n] + b["images"][n]) for n in names}
+    sq = np.concatenate([((images[n] - ref[n]) ** 2)[mask[n]].ravel() for n in names])
+    pair_noise = np.concatenate([((a["images"][n] - b["images"][n]) ** 2 / 4.0)[mask[n]].ravel() for n in names])
+    mean = np.concatenate([ref[n][mask[n]].ravel() for n in names]).mean()
+    return float(np.sqrt(max(sq.mean() - pair_noise.mean(), 0.0)) / max(mean, 1e-30))
+
+
+def _bake_dict(bake) -> dict:
+    return bake if isinstance(bake, dict) else dict(images=bake.images, coverage=bake.coverage)
 
 
 def block_average(image: np.ndarray, covered: np.ndarray, factor: int) -> np.ndarray:
@@ -190,10 +217,11 @@ def block_average(image: np.ndarray, covered: np.ndarray, factor: int) -> np.nda
 
 def seed_noise(a, b) -> float:
     """Relative RMS noise of one Cycles bake from two bakes with different seeds."""
-    names = list(a.images)
-    mask = {n: a.coverage[n] & b.coverage[n] for n in names}
-    d = np.concatenate([(a.images[n] - b.images[n])[mask[n]].ravel() for n in names])
-    mean = np.concatenate([(0.5 * (a.images[n] + b.images[n]))[mask[n]].ravel() for n in names]).mean()
+    a, b = _bake_dict(a), _bake_dict(b)
+    names = list(a["images"])
+    mask = {n: a["coverage"][n] & b["coverage"][n] for n in names}
+    d = np.concatenate([(a["images"][n] - b["images"][n])[mask[n]].ravel() for n in names])
+    mean = np.concatenate([(0.5 * (a["images"][n] + b["images"][n]))[mask[n]].ravel() for n in names]).mean()
     return float(np.sqrt(np.mean(d ** 2) / 2.0) / max(mean, 1e-30))
 
 
@@ -231,20 +259,52 @@ def table_scenes(quick: bool) -> list:
 
 
 def load_table_scene(name: str, texel_density):
+    """(Blender objects, core scene); Sponza and the building bake into the add-on's own UV map."""
     if name == "Cornell":
-        return cornell_scene()[1]
+        return cornell_scene()
     objects = bench_scenes.load_sponza() if name == "Sponza" else bench_scenes.load_occluded()
     settings = preset("FINAL", texel_density=texel_density, min_resolution=32)
     _, scene = bench_scenes.prepare(objects, settings, RESULTS / "cache" / name)
-    return scene
+    return objects, scene
+
+
+def cycles_pair(objects, scene, spp: int, bounces: int) -> list:
+    """Two Cycles INDIRECT bakes (seeds 1, 2) of every target in the add-on's UV map at its own size.
+
+    Objects of one size bake in one call. Returns two CyclesBake-like dicts (images, coverage, seconds).
+    """
+    from pdic.bench.cycles_reference import cycles_bake_full
+    from pdic.pdic_addon.uvmaps import LIGHTMAP_UV
+
+    by_size: dict = {}
+    for target in scene.targets:
+        by_size.setdefault((target.width, target.height), []).append(target.name)
+    named = {o.name: o for o in objects}
+    pair = []
+    for seed in (1, 2):
+        images, coverage, seconds = {}, {}, 0.0
+        for (w, h), names in by_size.items():
+            b = cycles_bake_full([named[n] for n in names], LIGHTMAP_UV, w, h, {"INDIRECT"}, spp, seed=seed,
+                                 diffuse_bounces=bounces)
+            images.update(b.images)
+            coverage.update(b.coverage)
+            seconds += b.total_seconds
+        pair.append(dict(images=images, coverage=coverage, seconds=seconds))
+    return pair
 
 
 def section_tables(quick: bool, errors_ref=None) -> dict:
-    table1, table2, fig5 = [], [], []
+    table1, table2, fig5, references = [], [], [], {}
     ref = load_reference()
     for name, photons, bounces, density in table_scenes(quick):
-        scene = load_table_scene(name, density)
+        objects, scene = load_table_scene(name, density)
         extra = {} if density is None else dict(texel_density=density, min_resolution=32)
+        pair = None
+        if name != "Cornell":  # no committed reference: a noise-corrected Cycles pair (see noise_corrected_error)
+            spp = 16 if quick else TABLE_REFERENCE_SPP[name]
+            pair, t_pair = timed(cycles_pair, objects, scene, spp, bounces)
+            references[name] = dict(spp=spp, seconds=t_pair, noise_indirect=seed_noise(*pair))
+            log("tables reference", name, references[name])
         for reuse in (True, False):
             settings = preset("FINAL", photons=photons, max_bounces=bounces, reuse_photon_paths=reuse, **extra)
             result, seconds = timed(bake, scene, settings)
@@ -253,6 +313,8 @@ def section_tables(quick: bool, errors_ref=None) -> dict:
             if name == "Cornell":
                 err = dict(error_all=relative_rmse({n: result.lightmaps[n][..., :3] for n in ref[0]}, ref[0], ref[2]),
                            error_indirect=relative_rmse(result.indirect, ref[1], ref[2]))
+            else:
+                err = dict(error_indirect=noise_corrected_error(result.indirect, result.centre_inside, pair))
             row = dict(scene=name, reuse=reuse, seconds=seconds, stage_seconds=s, triangles=c["triangles"],
                        texels=int(sum(t.width * t.height for t in scene.targets)),
                        texel_samples=c["texel_samples"], photons_emitted=c.get("photons_emitted", 0),
@@ -264,7 +326,7 @@ def section_tables(quick: bool, errors_ref=None) -> dict:
                        photon_bytes=c.get("photon_bytes", 0), **(err or {}))
             log("tables", {k: v for k, v in row.items() if k != "stage_seconds"})
             (table1 if reuse else table2).append(row)
-        fig5.append(figure5(name, scene, photons, bounces, extra, ref if name == "Cornell" else None))
+        fig5.append(figure5(name, scene, photons, bounces, extra, ref if name == "Cornell" else None, pair))
     # pair Table 2 rows
     pairs = []
     for with_reuse, standard in zip(table1, table2):
@@ -275,10 +337,10 @@ def section_tables(quick: bool, errors_ref=None) -> dict:
                           rays_saved=1 - with_reuse["refine_gather_rays"] / max(standard["refine_gather_rays"], 1),
                           standard_error_indirect=standard.get("error_indirect"),
                           reuse_error_indirect=with_reuse.get("error_indirect")))
-    return dict(table1=table1, table2_runs=table2, table2=pairs, figure5=fig5)
+    return dict(table1=table1, table2_runs=table2, table2=pairs, figure5=fig5, references=references)
 
 
-def figure5(name, scene, photons, bounces, extra, ref) -> dict:
+def figure5(name, scene, photons, bounces, extra, ref, pair=None) -> dict:
     """[Chr99] vs the pass-2 preview on the same photon map and texels: time and error."""
     settings = preset("PREVIEW", photons=photons, max_bounces=bounces, **extra)
     executor = Executor(default_workers())
@@ -314,7 +376,11 @@ def figure5(name, scene, photons, bounces, extra, ref) -> dict:
     if ref is not None:
         for label in images:
             out[f"{label}_error_indirect"] = relative_rmse(images[label], ref[1], ref[2])
-    else:  # no Cycles reference: how far apart the two are
+    elif pair is not None:
+        covered = {t.name: r.centre_inside for t, r in zip(scene.targets, rasters)}
+        for label in images:
+            out[f"{label}_error_indirect"] = noise_corrected_error(images[label], covered, pair)
+    if ref is None:  # how far apart the two are
         a = np.concatenate([v.ravel() for v in images["christensen"].values()])
         b = np.concatenate([v.ravel() for v in images["preview"].values()])
         out["christensen_vs_preview_rmse"] = float(np.sqrt(np.mean((a - b) ** 2)) / max(b.mean(), 1e-30))

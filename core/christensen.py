@@ -25,19 +25,29 @@ SAME_SURFACE_COS = 0.7
 """Photons (and lookup candidates) count only within ~45 degrees of the receiver's normal."""
 LOOKUP_CANDIDATES = 8
 """Nearest precomputed points examined per lookup to find one with an agreeing normal."""
+LOOKUP_REACH = 2.0
+"""A precomputed point answers lookups only within this many of its own estimate radii r.
+
+Without a bound a point in a room no photon reaches takes the irradiance of the nearest
+agreeing point wherever it is: through a floor slab or a partition, metres away (measured on
+the occluded building: the sealed upper room got E/pi 0.40 against Cycles' 0 from points a
+median 2 m = 6.9 r away; ordinary lookups sit at 0.21 r, 99% within 1.7 r).
+"""
 
 
 @dataclass(frozen=True)
 class PhotonIrradiance:
-    """Irradiance precomputed at photon positions (m points; 8*(3+3+3) = 72 bytes each).
+    """Irradiance precomputed at photon positions (m points; 8*(3+3+3+1) = 80 bytes each).
 
     p, n : (m, 3) float64 scene-local positions and unit normals of the photons used.
     E : (m, 3) float64 indirect irradiance W/m^2 estimated there.
+    r : (m,) float64 radius of that estimate (distance to the k-th neighbour), scene units.
     """
 
     p: np.ndarray
     n: np.ndarray
     E: np.ndarray
+    r: np.ndarray
 
     def __len__(self) -> int:
         return len(self.p)
@@ -54,7 +64,7 @@ def precompute_irradiance(photons: PhotonMap, k: int = K_NEAREST, fraction: floa
     N = len(photons)
     indirect = np.flatnonzero(photons.is_indirect)
     if N == 0 or len(indirect) == 0:
-        return PhotonIrradiance(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)))
+        return PhotonIrradiance(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
     rng = np.random.default_rng([seed, 99])
     m = max(1, int(round(fraction * N)))
     at = np.sort(rng.choice(N, size=min(m, N), replace=False))
@@ -63,30 +73,35 @@ def precompute_irradiance(photons: PhotonMap, k: int = K_NEAREST, fraction: floa
     tree = cKDTree(p_all[indirect])
     kk = min(k, len(indirect))
     E = np.zeros((len(at), 3))
+    r = np.zeros(len(at))
     power = photons.power[indirect].astype(np.float64)
     n_ind = n_all[indirect]
     for s in range(0, len(at), 65_536):
         rows = at[s:s + 65_536]
         dist, idx = tree.query(p_all[rows], k=kk)
         dist, idx = dist.reshape(len(rows), kk), idx.reshape(len(rows), kk)
+        r[s:s + len(rows)] = dist[:, -1]
         r2 = np.maximum(dist[:, -1] ** 2, 1e-300)
         agree = np.einsum("mkj,mj->mk", n_ind[idx], n_all[rows]) >= SAME_SURFACE_COS
         E[s:s + len(rows)] = np.einsum("mk,mkc->mc", agree.astype(np.float64), power[idx]) / (np.pi * r2)[:, None]
-    return PhotonIrradiance(p_all[at], n_all[at], E)
+    return PhotonIrradiance(p_all[at], n_all[at], E, r)
 
 
 def lookup(estimate: PhotonIrradiance, p: np.ndarray, n: np.ndarray) -> np.ndarray:
     """[Chr99] step 2: (q, 3) irradiance of the nearest precomputed point whose normal agrees.
 
-    p, n : (q, 3) float64 query points and unit normals. Points with no agreeing
-    candidate among :data:`LOOKUP_CANDIDATES` get 0 (no light through a surface's back).
+    p, n : (q, 3) float64 query points and unit normals. A candidate (one of the
+    :data:`LOOKUP_CANDIDATES` nearest) must agree in normal and lie within
+    :data:`LOOKUP_REACH` of its estimate radii; points with none get 0 (no light through
+    a surface's back, nor from another room through a wall).
     """
     q = len(p)
     if q == 0 or len(estimate) == 0:
         return np.zeros((q, 3))
     k = min(LOOKUP_CANDIDATES, len(estimate))
-    _, idx = cKDTree(estimate.p).query(p, k=k)
-    idx = idx.reshape(q, k)
+    dist, idx = cKDTree(estimate.p).query(p, k=k)
+    dist, idx = dist.reshape(q, k), idx.reshape(q, k)
     agree = np.einsum("qkj,qj->qk", estimate.n[idx], n) >= SAME_SURFACE_COS
+    agree &= dist <= LOOKUP_REACH * estimate.r[idx]
     first = idx[np.arange(q), agree.argmax(axis=1)]
     return np.where(agree.any(axis=1)[:, None], estimate.E[first], 0.0)

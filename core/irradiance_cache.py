@@ -56,6 +56,7 @@ FAR_WALL = 1e6
 SECTOR_OFFSET = 0.3819660112501051
 """Sector grid rotation (radians, 1/phi^2): boundaries and rays never align with axis-aligned grids,
 where texel samples would sit exactly on a boundary and float noise would pick the sector."""
+_TINY_WALL = 1e-30  # the nearest a wall may be: products of two such lengths stay normal float64
 R_OVERSAMPLE = 3
 """Neighbours fetched per wanted indirect photon when estimating R_k."""
 SAME_SURFACE_COS = 0.7
@@ -162,6 +163,7 @@ class PhotonDensity:
         self.queries = 0
         self.records: IrradianceCache | None = None  # pass 2's records, set by generate_irradiance_cache
         self.records_lookup = None  # their CacheLookup, built by pass 3 when it needs one
+        self.radiance_out = None  # (N, 3) radiance leaving each photon, built by pass 3 for virtual rays
 
     def harmonic_mean_distance(self, p_k: np.ndarray, n_k: np.ndarray, count: int, R_max: float) -> float:
         """R_k from the last hits of the ``count`` nearest indirect photons (Figure 3); R_max if none fit.
@@ -343,11 +345,19 @@ def wall_distances(caster, p_k: np.ndarray, n_k: np.ndarray, reach: np.ndarray) 
     K = len(p_k)
     phi = _ray_angle(np.arange(WALL_RAYS))
     t1, t2 = orthonormal_basis(n_k)
-    d = np.cos(phi)[None, :, None] * t1[:, None] + np.sin(phi)[None, :, None] * t2[:, None]
-    origin = p_k + (WALL_LIFT * reach)[:, None] * n_k
-    hits = caster.intersect(np.repeat(origin, WALL_RAYS, axis=0), d.reshape(-1, 3),
-                            t_max=np.repeat(reach, WALL_RAYS))
-    return hits.t.reshape(K, WALL_RAYS).astype(np.float32)
+    d = (np.cos(phi)[None, :, None] * t1[:, None] + np.sin(phi)[None, :, None] * t2[:, None]).reshape(-1, 3)
+    origin = np.repeat(p_k + (WALL_LIFT * reach)[:, None] * n_k, WALL_RAYS, axis=0)
+    t_max = np.repeat(reach, WALL_RAYS)
+    t = caster.intersect(origin, d, t_max=t_max).t
+    # A lifted origin lying on another surface (a record where a railing bar meets the rail it
+    # holds) hits that surface at t = 0 in every direction: all walls at 0 make the kernel mass
+    # in PhotonDensity.record hit its 1e-3 floor while beyond_wall, whose segments are then
+    # points, rejects no photon, so E_k came out 1000x too high. Look again from just past it.
+    start = np.flatnonzero(t <= caster.epsilon)
+    if len(start):
+        step = caster.epsilon
+        t[start] = step + caster.intersect(origin[start] + step * d[start], d[start], t_max=t_max[start] - step).t
+    return t.reshape(K, WALL_RAYS).astype(np.float32)
 
 
 def wall_clearance(wall: np.ndarray) -> np.ndarray:
@@ -381,8 +391,11 @@ def beyond_wall(wall: np.ndarray, delta: np.ndarray, n_k: np.ndarray) -> np.ndar
     t_i, t_j = wall[rows, i].astype(np.float64), wall[rows, j].astype(np.float64)
     finite = np.isfinite(t_i) | np.isfinite(t_j)
     far = FAR_WALL * np.where(np.isfinite(t_i), t_i, np.where(np.isfinite(t_j), t_j, 1.0))
-    t_i = np.where(np.isfinite(t_i), t_i, far) * (1.0 - WALL_MARGIN)
-    t_j = np.where(np.isfinite(t_j), t_j, far) * (1.0 - WALL_MARGIN)
+    # A wall at distance 0 would make its segment a point through the record, on whose line
+    # every point lies: nothing would be past it while PhotonDensity.record's kernel mass for
+    # it is ~0 (E_k came out 1000x too high). A tiny positive distance keeps the polygon a polygon.
+    t_i = np.maximum(np.where(np.isfinite(t_i), t_i, far) * (1.0 - WALL_MARGIN), _TINY_WALL)
+    t_j = np.maximum(np.where(np.isfinite(t_j), t_j, far) * (1.0 - WALL_MARGIN), _TINY_WALL)
     a_i, a_j = _ray_angle(i), _ray_angle(j)
     hx_i, hy_i = t_i * np.cos(a_i), t_i * np.sin(a_i)
     hx_j, hy_j = t_j * np.cos(a_j), t_j * np.sin(a_j)

@@ -169,7 +169,7 @@ def _bake(scene: Scene, settings: BakeSettings, progress: Progress, executor: Ex
                         _put(store, "direct", direct_key(w), w.E_direct)
 
     # -- indirect light: passes 1-3 only if some target still needs it
-    base_cache = photon_map = None
+    base_cache = photon_map = density = None
     for w in work:
         w.E_indirect = np.zeros((len(w.points), 3))
     if settings.indirect and settings.photons > 0:
@@ -201,12 +201,15 @@ def _bake(scene: Scene, settings: BakeSettings, progress: Progress, executor: Ex
             photon_map = replace(photon_map, w_sum=np.zeros_like(photon_map.w_sum),
                                  E_indirect_sum=np.zeros_like(photon_map.E_indirect_sum),
                                  E_direct=np.zeros_like(photon_map.E_direct))
-            base_cache = build_cache(scene, caster, photon_map, params, settings, executor, progress, stats)
+            base_cache, density = build_cache(scene, caster, photon_map, params, settings, executor, progress,
+                                              stats, with_density=True)
             _put(store, "cache", cache_key, (base_cache, photon_map))
         if todo:
-            density = PhotonDensity(photon_map) if len(photon_map) else None
+            if density is None and len(photon_map):  # the cache came from the store
+                density = PhotonDensity(photon_map)
             if density is not None:  # hole records' gathering reads indirect light from this cache
                 density.records = base_cache
+                density.records_lookup = None
             for w in todo:
                 w.E_indirect, w.holes = indirect_at_texels(scene, caster(), density, base_cache, w, params,
                                                            settings, executor, progress, stats)
@@ -274,10 +277,14 @@ def trace_pass(scene: Scene, caster: RayCaster, settings: BakeSettings, photon_b
 
 
 def build_cache(scene: Scene, caster, photon_map: PhotonMap, params: CacheParameters, settings: BakeSettings,
-                executor: Executor, progress: Progress, stats: BakeStats) -> IrradianceCache:
-    """Pass 2 (Algorithm 1) and, for Final quality, pass 3 (refinement). ``caster`` is a callable."""
+                executor: Executor, progress: Progress, stats: BakeStats, with_density: bool = False):
+    """Pass 2 (Algorithm 1) and, for Final quality, pass 3 (refinement). ``caster`` is a callable.
+
+    Returns the cache, or (cache, its PhotonDensity or None) ``with_density``: the photons'
+    kd-tree costs seconds on big maps, and hole records need it again.
+    """
     if len(photon_map) == 0:
-        return IrradianceCache()
+        return (IrradianceCache(), None) if with_density else IrradianceCache()
     progress.begin("Pass 2: irradiance cache")
     with stats.stage("cache"):
         density = PhotonDensity(photon_map)
@@ -287,16 +294,17 @@ def build_cache(scene: Scene, caster, photon_map: PhotonMap, params: CacheParame
               wall_rays=build.wall_rays)
     if settings.refine:
         progress.begin("Pass 3: refining records")
-        with stats.stage("photon_direct"):
-            photon_map.E_direct[:] = shade_direct(
-                scene, caster(), photon_map.p.astype(np.float64), photon_map.n.astype(np.float64),
-                photon_map.n.astype(np.float64), PHOTON_DIRECT_SAMPLES, settings.seed, _STREAM_PHOTON_DIRECT,
-                executor, progress)[0]
+        if settings.reuse_photon_paths:  # only virtual rays read the photons' direct irradiance
+            with stats.stage("photon_direct"):
+                photon_map.E_direct[:] = shade_direct(
+                    scene, caster(), photon_map.p.astype(np.float64), photon_map.n.astype(np.float64),
+                    photon_map.n.astype(np.float64), PHOTON_DIRECT_SAMPLES, settings.seed, _STREAM_PHOTON_DIRECT,
+                    executor, progress)[0]
         with stats.stage("refine"):
             cache, refine_counters = refine_records(scene, caster(), density, cache, zones, settings, params,
                                                     executor, progress)
         stats.add(**refine_counters)
-    return cache
+    return (cache, density) if with_density else cache
 
 
 def indirect_at_texels(scene: Scene, caster: RayCaster, density: PhotonDensity | None, cache: IrradianceCache,

@@ -42,6 +42,8 @@ VISIBILITY_LIFT = 0.02
 """Zone-visibility segments run this fraction of their length above the surface."""
 PROBE_RAYS = 16
 """Real rays per record cast before reuse, stratified over the hemisphere (they fill their cells)."""
+VIRTUAL_PER_CELL = 2.0
+"""Virtual rays kept per record, as a multiple of its cells (the rest of its zone's photons are thinned)."""
 
 
 def refine_records(scene: Scene, caster: RayCaster, density: PhotonDensity, cache: IrradianceCache, zones: Zones,
@@ -53,13 +55,17 @@ def refine_records(scene: Scene, caster: RayCaster, density: PhotonDensity, cach
         return cache, {}
     H = Hemisphere(settings.hemisphere_theta, settings.hemisphere_phi)
     photons = density.photons
-    E_total = photons.E_direct.astype(np.float64) + photons.E_indirect()
     # Indirect irradiance at real rays' hits: the records gathered so far (gradient-free), built once.
     if density.records_lookup is None:
         density.records_lookup = CacheLookup(density.records if density.records is not None else cache,
                                              params.a, use_gradients=False)
     lookup = density.records_lookup
-    radiance_out = photons.albedo.astype(np.float64) * E_total / np.pi  # leaving each photon, W/m^2/sr
+    radiance_out = None
+    if settings.reuse_photon_paths:  # leaving each photon, W/m^2/sr; the photons' fields are final after pass 2
+        if density.radiance_out is None:
+            E_total = photons.E_direct.astype(np.float64) + photons.E_indirect()
+            density.radiance_out = photons.albedo.astype(np.float64) * E_total / np.pi
+        radiance_out = density.radiance_out
     serial = caster.serial()
     batches = [slice(s, min(s + RECORD_BATCH, K)) for s in range(0, K, RECORD_BATCH)]
     done = [0]
@@ -152,9 +158,20 @@ def _refine_batch(scene: Scene, caster: RayCaster, density: PhotonDensity, radia
         prev = density.photons.prev[ph]
         keep = prev >= 0
         rec, ph, prev = rec[keep], ph[keep], prev[keep].astype(np.int64)
-        near = np.linalg.norm(density.p[ph] - p_k[rec], axis=1) < zone_radius[rec]
+        offset = density.p[ph] - p_k[rec]
+        offset_length = np.linalg.norm(offset, axis=1)
+        near = offset_length < zone_radius[rec]
         rec, ph, prev = rec[near], ph[near], prev[near]
-        visible, visibility_rays = _zone_visibility(caster, density, p_k, n, t1, t2, rec, ph, B)
+        offset, offset_length = offset[near], offset_length[near]
+        # A zone holds far more photons than a record has cells (9 per filled cell on the occluded
+        # building): beyond VIRTUAL_PER_CELL x cells a record's photons are thinned at random,
+        # which keeps every direction's share and costs the bookkeeping of the rest.
+        per_record = np.bincount(rec, minlength=B)
+        keep_p = np.minimum(1.0, VIRTUAL_PER_CELL * C / np.maximum(per_record, 1))
+        kept = rng.random(len(rec)) < keep_p[rec]
+        rec, ph, prev, offset, offset_length = rec[kept], ph[kept], prev[kept], offset[kept], offset_length[kept]
+        visible, visibility_rays = _zone_visibility(caster, density, p_k, n, t1, t2, rec, ph, B,
+                                                    offset, offset_length)
         rec, ph, prev = rec[visible], ph[visible], prev[visible]
         v = density.last_hit[ph] - p_k[rec]
         local = to_local(v, t1[rec], t2[rec], n[rec])
@@ -181,7 +198,7 @@ def _refine_batch(scene: Scene, caster: RayCaster, density: PhotonDensity, radia
         inv_d_sum += np.bincount(rec, weights=1.0 / dist, minlength=B)
         inv_d_count += np.bincount(rec, minlength=B)
         virtual = len(rec)
-        cells_virtual = len(np.unique(cell[sel]))
+        cells_virtual = int(np.count_nonzero(np.bincount(cell[sel], minlength=B * C)))
     else:
         cells_virtual = 0
 
@@ -242,7 +259,8 @@ def _cast_real(scene, caster, lookup, p_k, n, t1, t2, H: Hemisphere, cells: np.n
     return inv_sum, inv_n, shadow_rays
 
 
-def _zone_visibility(caster: RayCaster, density: PhotonDensity, p_k, n, t1, t2, rec, ph, B: int):
+def _zone_visibility(caster: RayCaster, density: PhotonDensity, p_k, n, t1, t2, rec, ph, B: int,
+                     d: np.ndarray, dist: np.ndarray):
     """(m,) bool: keep the virtual rays whose photon the record can see, sector by sector.
 
     The paper assumes visibility barely changes across a zone of influence. It fails
@@ -252,17 +270,20 @@ def _zone_visibility(caster: RayCaster, density: PhotonDensity, p_k, n, t1, t2, 
     around n_k; one occlusion ray tests the farthest photon of each sector, and a
     blocked sector's photons are dropped (their cells then cast real rays). Cost:
     at most 8 rays per record, against hundreds of cells.
+
+    d, dist : (m, 3) offsets photon - record and their lengths (the caller has them).
     """
     if len(rec) == 0:
         return np.ones(0, bool), 0
-    d = density.p[ph] - p_k[rec]
     angle = np.arctan2(np.einsum("ij,ij->i", d, t2[rec]), np.einsum("ij,ij->i", d, t1[rec]))
     sector = rec * VISIBILITY_SECTORS + np.minimum(
         ((angle + np.pi) / (2 * np.pi) * VISIBILITY_SECTORS).astype(np.int64), VISIBILITY_SECTORS - 1)
-    dist = np.linalg.norm(d, axis=1)
-    order = np.lexsort((-dist, sector))  # farthest photon first within each sector
-    first = order[np.r_[True, sector[order][1:] != sector[order][:-1]]]
-    probe = first[dist[first] > 0]
+    # The farthest photon of each sector, without sorting all of them.
+    farthest = np.full(B * VISIBILITY_SECTORS, -1.0)
+    np.maximum.at(farthest, sector, dist)
+    candidates = np.flatnonzero((dist == farthest[sector]) & (dist > 0))
+    _, first = np.unique(sector[candidates], return_index=True)
+    probe = candidates[first]
     # Both ends lie on (nearly) the same surface: a segment a hair above it grazes it and float32
     # reports hits on the surface itself (measured: 60 % of sectors falsely blocked on a flat floor).
     # Lifting both ends by a fraction of the segment's length keeps it clear of its own surface

@@ -1,0 +1,55 @@
+"""Records' walls where surfaces meet, and the [Chr99] baseline's reach.
+
+Found on the bench's occluded building: hole records where a railing bar meets the rail
+had every wall ray start on the bar's face, all eight walls at distance 0, and a density
+estimate 1000x too high (the Figure 5 preview differed from [Chr99] by 1,694 %).
+"""
+import numpy as np
+
+from pdic.core import christensen
+from pdic.core.irradiance_cache import WALL_RAYS, PhotonDensity, wall_distances
+from pdic.core.photons import trace_photons
+from pdic.core.rays import RayCaster
+from pdic.core.scene import Materials, PointLight, Scene
+
+from scenes import geometry, quad
+
+
+def _floor_and_bar():
+    """A 2 x 2 floor at z = 0 and a bar's face, the plane x = 0 for y in [-1, 1], z in [0, 1]."""
+    floor = quad([-1, -1, 0], [2, 0, 0], [0, 2, 0])
+    face = quad([0, -1, 0], [0, 2, 0], [0, 0, 1])
+    return np.concatenate([floor, face])
+
+
+def test_wall_rays_starting_on_another_surface_look_past_it():
+    caster = RayCaster(_floor_and_bar())
+    reach = np.array([0.4])
+    # The record sits on the floor against the face: its wall rays start (lifted 2 cm) on the face.
+    wall = wall_distances(caster, np.array([[0.0, 0.0, 0.0]]), np.array([[0.0, 0.0, 1.0]]), reach)[0]
+    assert wall.shape == (WALL_RAYS,)
+    assert np.all(wall > caster.epsilon)  # no wall at distance 0
+
+
+def test_a_record_walled_in_at_zero_gets_no_photons_rather_than_amplified_ones():
+    tris = _floor_and_bar()
+    scene = Scene(geometry(tris), Materials.default(1),
+                  lights=(PointLight("p", np.array([0.5, 0.0, 0.8]), np.full(3, 100.0)),))
+    photons, _ = trace_photons(scene, RayCaster(tris), 20_000, 3, seed=1)
+    density = PhotonDensity(photons)
+    p_k, n_k, R_k, a = np.array([0.5, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]), 0.5, 0.5
+    _, _, E_open, used_open = density.record(p_k, n_k, R_k, a, None)
+    _, _, E_zero, used_zero = density.record(p_k, n_k, R_k, a, np.zeros(WALL_RAYS, np.float32))
+    assert used_open > 50 and np.all(E_open > 0)
+    assert np.all(np.isfinite(E_zero))
+    assert used_zero <= 1 and np.all(E_zero <= E_open)  # walls only ever remove photons
+
+
+def test_christensen_lookup_does_not_reach_through_to_far_estimates():
+    # Two estimates 1 unit apart with small radii: a point beside the first takes its value, a
+    # point in between, 0.5 away from either (many radii), takes nothing.
+    estimate = christensen.PhotonIrradiance(p=np.array([[0.0, 0, 0], [1.0, 0, 0]]), n=np.array([[0, 0, 1.0]] * 2),
+                                            E=np.array([[3.0, 3, 3], [5.0, 5, 5]]), r=np.array([0.05, 0.05]))
+    E = christensen.lookup(estimate, np.array([[0.02, 0, 0], [0.5, 0, 0]]), np.array([[0, 0, 1.0]] * 2))
+    assert np.allclose(E[0], 3.0)
+    assert np.allclose(E[1], 0.0)
