@@ -96,7 +96,8 @@ def markdown(results: dict) -> str:
         out.append(_table(["scene", "standard rays", "reuse rays", "saved", "standard s", "reuse s",
                            "standard error ind. %", "reuse error ind. %"], rows))
         out.append("\nRays = gathering rays (real cell rays + probe + zone-visibility rays), without the shadow rays "
-                   "at gather hits.\n")
+                   "at gather hits. Seconds = pass 3: refinement plus, with reuse, the photons' direct light that "
+                   "virtual rays read.\n")
         out.append("\n## Figure 5: [Chr99] vs the pass-2 preview (same photon map and texels)\n\n")
         rows = []
         for f in t["figure5"]:
