@@ -68,6 +68,11 @@ class RayCaster:
         self.extent = max(float(extent), 1e-30)
         self.epsilon = RELATIVE_EPSILON * self.extent
         self.triangle_count = len(positions)
+        cross = np.cross(positions[:, 1] - positions[:, 0], positions[:, 2] - positions[:, 0]) if len(positions) \
+            else np.zeros((0, 3))
+        length = np.linalg.norm(cross, axis=1, keepdims=True)
+        self.face_normals = np.divide(cross, length, out=np.zeros_like(cross), where=length > 0)
+        """(T, 3) unit geometric normals of the triangles (zero for degenerate ones), for hit tests."""
         self.executor = executor or serial_executor()
         self._scene = rtcore_scene.EmbreeScene()
         if len(positions):
