@@ -90,3 +90,28 @@ def test_kernel_coverage_lifts_a_bars_density_estimate_toward_the_truth():
     _, _, covered, _ = density.record(p_k, n_k, R_k, a, None, coverage)
     assert plain[0] < 0.3 * true_E
     assert abs(covered[0] - true_E) < 0.5 * true_E
+
+
+def test_gather_hits_outside_every_record_take_the_nearest_visible_photons_light():
+    # Pass 3 reads indirect light at its rays' hits from pass 2's records; where none accepts
+    # the hit (a third of Sponza's hits) it must fall back to the nearest photon, not to 0, but
+    # never to a photon on the other side of a wall.
+    from pdic.core.refinement import nearest_photon_irradiance
+
+    floor = quad([-1, -1, 0], [2, 0, 0], [0, 2, 0])
+    wall = quad([0.5, -1, 0], [0, 2, 0], [0, 0, 1])  # a wall standing on the floor at x = 0.5
+    tris = np.concatenate([floor, wall])
+    # The lamp is beyond the wall and lower than it: photons land only on the far side (x > 0.5).
+    scene = Scene(geometry(tris), Materials.default(1),
+                  lights=(PointLight("p", np.array([0.8, 0.0, 0.6]), np.full(3, 100.0)),))
+    caster = RayCaster(tris)
+    photons, _ = trace_photons(scene, caster, 5_000, 1, seed=4)
+    photons.w_sum[:] = 1.0
+    photons.E_indirect_sum[:] = 7.0
+    density = PhotonDensity(photons)
+    up = np.tile([0.0, 0, 1], (2, 1))
+    beyond, near_wall = [0.8, 0.2, 0.0], [0.45, 0.0, 0.0]
+    E, rays = nearest_photon_irradiance(caster, density, np.array([beyond, near_wall]), up)
+    assert rays == 2
+    assert np.allclose(E[0], 7.0)  # a photon nearby on the same side and in sight
+    assert np.allclose(E[1], 0.0)  # the nearest same-side photons are behind the wall
