@@ -1,6 +1,6 @@
 """The PDIC benchmark suite: run time against error, the paper's tables, scaling, re-bakes.
 
-    .venv/bin/python -m bench.run            # full suite, ~30 min on 2 cores
+    .venv/bin/python -m bench.run            # full suite, ~25 min on 2 cores
     .venv/bin/python -m bench.run --quick    # CI-sized, ~5 min
     .venv/bin/python -m bench.run --only errors,tables
 
@@ -158,12 +158,15 @@ def section_errors(quick: bool) -> dict:
     out["cycles_512"] = cycles512
     log("errors 512 cycles", cycles512)
     big = []
-    for quality, photons in ([("PREVIEW", 250_000), ("FINAL", 250_000), ("FINAL", 1_000_000)]
-                             if not quick else [("PREVIEW", 100_000)]):
-        result, seconds = timed(bake, scene512, preset(quality, photons=photons, max_bounces=CORNELL_BOUNCES))
+    runs512 = [("PREVIEW", 250_000, {}), ("FINAL", 250_000, {}), ("FINAL", 1_000_000, {}),
+               ("FINAL", 1_000_000, dict(hemisphere_theta=24, hemisphere_phi=48))]
+    for quality, photons, extra in (runs512 if not quick else [("PREVIEW", 100_000, {})]):
+        result, seconds = timed(bake, scene512, preset(quality, photons=photons, max_bounces=CORNELL_BOUNCES,
+                                                       **extra))
         factor = res512 // CORNELL_RES
         down = {n: block_average(result.indirect[n], result.centre_inside[n], factor) for n in ref_ind}
-        big.append(dict(method=f"PDIC {quality.title()}", quality=quality, photons=photons, resolution=res512,
+        cells = f", {extra['hemisphere_theta']}x{extra['hemisphere_phi']} cells" if extra else ""
+        big.append(dict(method=f"PDIC {quality.title()}{cells}", quality=quality, photons=photons, resolution=res512,
                         seconds=seconds, error_indirect=noise_corrected_error(result.indirect, result.centre_inside,
                                                                                bakes),
                         error_indirect_downsampled=relative_rmse(down, ref_ind, masks),
