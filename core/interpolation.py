@@ -56,7 +56,7 @@ class CacheLookup:
         Returns (E (m, 3) float64 >= 0, w_sum (m,) float64); w_sum == 0 marks a hole
         (no record accepted), where E is 0.
         """
-        E, w_sum, _ = self.irradiance_and_zone(p, n)
+        E, w_sum, _ = self._equation_3(p, n, with_zone=False)
         return E, w_sum
 
     def irradiance_and_zone(self, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -64,6 +64,9 @@ class CacheLookup:
 
         The smallest zone bounds how fast Equation 3 can change around the point.
         """
+        return self._equation_3(p, n, with_zone=True)
+
+    def _equation_3(self, p: np.ndarray, n: np.ndarray, with_zone: bool):
         m = len(p)
         num = np.zeros((m, 3))
         den = np.zeros(m)
@@ -85,6 +88,7 @@ class CacheLookup:
             for ch in range(3):
                 num[:, ch] = np.bincount(rows, weights=w * E_rec[:, ch], minlength=m)
             den = np.bincount(rows, weights=w, minlength=m)
-            np.minimum.at(smallest, rows, self.zone[rec])
+            if with_zone:
+                np.minimum.at(smallest, rows, self.zone[rec])
         E = np.divide(num, den[:, None], out=np.zeros_like(num), where=den[:, None] > 0)
         return E, den, smallest

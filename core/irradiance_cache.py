@@ -58,6 +58,7 @@ SECTOR_OFFSET = 0.3819660112501051
 where texel samples would sit exactly on a boundary and float noise would pick the sector."""
 COVERAGE_RINGS = 4
 COVERAGE_ANGLES = 8
+"""Probe points of surface_coverage: COVERAGE_RINGS equal-area rings of COVERAGE_ANGLES each."""
 COVERAGE_LIFT = 0.05
 """Height above the tangent plane the coverage probes start from, as a fraction of the disc radius."""
 COVERAGE_FLOOR = 0.05
@@ -229,9 +230,10 @@ class PhotonDensity:
             # over the part of the disc on this side (Epanechnikov mass within u r: 2u^2 - u^4).
             m = len(sphere)
             use &= ~beyond_wall(np.broadcast_to(wall, (m, WALL_RAYS)), P - p_k, np.broadcast_to(n_k, (m, 3)))
-            u = np.minimum(wall.astype(np.float64) / radius, 1.0)
-            mass = max(float(np.mean(2 * u ** 2 - u ** 4)), 1e-3)
-        if coverage is not None:  # measured by surface_coverage: the kernel's share that lies on the surface
+            if coverage is None:
+                u = np.minimum(wall.astype(np.float64) / radius, 1.0)
+                mass = max(float(np.mean(2 * u ** 2 - u ** 4)), 1e-3)
+        if coverage is not None:  # measured by surface_coverage (walls included): the share that is surface
             mass = coverage
         used = int(use.sum())
         E_k = np.zeros(3)
@@ -387,11 +389,7 @@ def surface_coverage(caster, p_k: np.ndarray, n_k: np.ndarray, radius: float, wa
     it; a point counts if it finds surface facing like n_k there and is not past a wall.
     Returns a value in [COVERAGE_FLOOR, 1].
     """
-    rings = np.sqrt((np.arange(COVERAGE_RINGS) + 0.5) / COVERAGE_RINGS)  # u = d / r, equal-area rings
-    angles = SECTOR_OFFSET + 2 * np.pi * (np.arange(COVERAGE_ANGLES) + 0.5 * (np.arange(COVERAGE_RINGS)[:, None] % 2)) \
-        / COVERAGE_ANGLES
-    u = np.broadcast_to(rings[:, None], angles.shape).ravel()
-    phi = angles.ravel()
+    u, phi = _COVERAGE_U, _COVERAGE_PHI
     t1, t2 = orthonormal_basis(n_k[None])
     offset = (u * radius)[:, None] * (np.cos(phi)[:, None] * t1 + np.sin(phi)[:, None] * t2)
     lift = COVERAGE_LIFT * radius
@@ -405,8 +403,19 @@ def surface_coverage(caster, p_k: np.ndarray, n_k: np.ndarray, radius: float, wa
         present[present] = face_n @ n_k >= SAME_SURFACE_COS
     if wall is not None and np.isfinite(wall).any():
         present &= ~beyond_wall(np.broadcast_to(wall, (m, WALL_RAYS)), offset, np.broadcast_to(n_k, (m, 3)))
-    kernel = 1.0 - u ** 2
-    return float(max(np.sum(kernel * present) / np.sum(kernel), COVERAGE_FLOOR))
+    return float(max(np.sum(_COVERAGE_KERNEL * present) / np.sum(_COVERAGE_KERNEL), COVERAGE_FLOOR))
+
+
+def _coverage_pattern() -> tuple[np.ndarray, np.ndarray]:
+    """(u = d / r, angle) of the coverage probes: equal-area rings, every other ring turned half a step."""
+    rings = np.sqrt((np.arange(COVERAGE_RINGS) + 0.5) / COVERAGE_RINGS)
+    steps = np.arange(COVERAGE_ANGLES) + 0.5 * (np.arange(COVERAGE_RINGS)[:, None] % 2)
+    angles = SECTOR_OFFSET + 2 * np.pi * steps / COVERAGE_ANGLES
+    return np.broadcast_to(rings[:, None], angles.shape).ravel(), angles.ravel()
+
+
+_COVERAGE_U, _COVERAGE_PHI = _coverage_pattern()
+_COVERAGE_KERNEL = 1.0 - _COVERAGE_U ** 2  # Epanechnikov weight of each probe
 
 
 def wall_clearance(wall: np.ndarray) -> np.ndarray:

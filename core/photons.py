@@ -80,10 +80,14 @@ class PhotonMap:
         """(N, 3) float64 the previous hit point p_lh = p + wi * d_prev (Figure 3)."""
         return self.p.astype(np.float64) + self.wi.astype(np.float64) * self.d_prev[:, None].astype(np.float64)
 
-    def E_indirect(self) -> np.ndarray:
-        """(N, 3) float64 interpolated indirect irradiance at each photon from the cache (0 where uncovered)."""
-        w = self.w_sum.astype(np.float64)[:, None]
-        return np.divide(self.E_indirect_sum.astype(np.float64), w, out=np.zeros((len(self), 3)), where=w > 0)
+    def E_indirect(self, index: np.ndarray | None = None) -> np.ndarray:
+        """(N, 3) float64 interpolated indirect irradiance at each photon from the cache (0 where uncovered).
+
+        index : photon indices (m,) to evaluate only those, (m, 3).
+        """
+        pick = slice(None) if index is None else index
+        w = self.w_sum[pick].astype(np.float64)[:, None]
+        return np.divide(self.E_indirect_sum[pick].astype(np.float64), w, out=np.zeros((len(w), 3)), where=w > 0)
 
     @staticmethod
     def empty(emitted: int = 0) -> "PhotonMap":

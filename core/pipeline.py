@@ -317,7 +317,7 @@ def indirect_at_texels(scene: Scene, caster: RayCaster, density: PhotonDensity |
         return E, IrradianceCache()
     progress.begin("Texel validity")
     with stats.stage("validity"):
-        inside, rays = texel_validity(scene, caster, points, [settings.seed, _STREAM_VALIDITY, _stream_of(work.key)],
+        inside, rays = texel_validity(caster, points, [settings.seed, _STREAM_VALIDITY, _stream_of(work.key)],
                                       executor, progress)
     stats.add(texel_samples_inside_geometry=int(inside.sum()), validity_rays=rays)
     valid = np.flatnonzero(~inside)
@@ -342,18 +342,17 @@ def indirect_at_texels(scene: Scene, caster: RayCaster, density: PhotonDensity |
     return E, full.take(slice(len(cache), None))
 
 
-def texel_validity(scene: Scene, caster: RayCaster, points, seed: list, executor: Executor,
+def texel_validity(caster: RayCaster, points, seed: list, executor: Executor,
                    progress: Progress) -> tuple[np.ndarray, int]:
     """Which texel samples lie inside closed geometry, chunked over the executor: ((n,) bool, rays cast)."""
     n = len(points)
     chunks = [slice(s, min(s + TEXEL_CHUNK, n)) for s in range(0, n, TEXEL_CHUNK)]
     serial = caster.serial()
-    face_normals = scene.geometry.face_normals()
     done = [0]
 
     def run(job):
         index, s = job
-        out = inside_geometry(serial, face_normals, points.p[s], points.n_geometric[s],
+        out = inside_geometry(serial, serial.face_normals, points.p[s], points.n_geometric[s],
                               np.random.default_rng([*seed, index]))
         done[0] += 1
         progress.update(done[0] / len(chunks))
@@ -447,16 +446,15 @@ def _lookup(cache, a, gradients, p, n, executor: Executor, progress: Progress, w
     done = [0]
 
     def run(s):
-        out = lookup.irradiance_and_zone(p[s], n[s])
+        out = (lookup.irradiance_and_zone if with_zone else lookup.irradiance)(p[s], n[s])
         done[0] += 1
         progress.update(done[0] / len(chunks))  # also where a cancel is noticed
         return out
 
     parts = executor.map(run, chunks)
     if not parts:
-        parts = [(np.zeros((0, 3)), np.zeros(0), np.zeros(0))]
-    out = tuple(np.concatenate([part[i] for part in parts]) for i in range(3))
-    return out if with_zone else out[:2]
+        parts = [(np.zeros((0, 3)), np.zeros(0), np.zeros(0))[:3 if with_zone else 2]]
+    return tuple(np.concatenate([part[i] for part in parts]) for i in range(len(parts[0])))
 
 
 def _finite(image: np.ndarray, name: str) -> np.ndarray:

@@ -20,6 +20,7 @@ import numpy as np
 from embreex import mesh_construction, rtcore_scene
 
 from .executor import Executor, serial_executor
+from .scene import unit_face_normals
 
 # Relative offset against self-intersection: float32 carries ~6e-8 relative
 # precision, so 1e-5 of the scene diagonal clears the rounding of any vertex
@@ -68,10 +69,7 @@ class RayCaster:
         self.extent = max(float(extent), 1e-30)
         self.epsilon = RELATIVE_EPSILON * self.extent
         self.triangle_count = len(positions)
-        cross = np.cross(positions[:, 1] - positions[:, 0], positions[:, 2] - positions[:, 0]) if len(positions) \
-            else np.zeros((0, 3))
-        length = np.linalg.norm(cross, axis=1, keepdims=True)
-        self.face_normals = np.divide(cross, length, out=np.zeros_like(cross), where=length > 0)
+        self.face_normals = unit_face_normals(positions)
         """(T, 3) unit geometric normals of the triangles (zero for degenerate ones), for hit tests."""
         self.executor = executor or serial_executor()
         self._scene = rtcore_scene.EmbreeScene()

@@ -33,6 +33,16 @@ def _require(array: np.ndarray, name: str, dtype, shape_tail: tuple) -> np.ndarr
 
 
 # --------------------------------------------------------------------------- geometry
+def unit_face_normals(positions: np.ndarray) -> np.ndarray:
+    """(T, 3) float64 unit normals of (T, 3, 3) triangles (right-handed winding); zero for degenerate ones."""
+    p = np.asarray(positions, dtype=np.float64)
+    if len(p) == 0:
+        return np.zeros((0, 3))
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
+
 @dataclass(frozen=True)
 class Geometry:
     """All triangles of the scene, baked or not (struct of arrays, T triangles).
@@ -77,10 +87,7 @@ class Geometry:
 
     def face_normals(self) -> np.ndarray:
         """(T, 3) float64 unit geometric normals (right-handed winding); zero for degenerate triangles."""
-        p = self.positions
-        n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-        length = np.linalg.norm(n, axis=1, keepdims=True)
-        return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+        return unit_face_normals(self.positions)
 
     def areas(self) -> np.ndarray:
         """(T,) float64 triangle areas in scene units squared."""
