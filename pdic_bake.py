@@ -143,10 +143,10 @@ def sub(pdic, name: str):
 
 
 def preview_camera(bpy, pdic, scene_core):
-    """core.preview.Camera for the scene camera, in the bake's scene-local space, and its aspect."""
+    """core.camera_render.Camera for the scene camera, in the bake's scene-local space, and its aspect."""
     import numpy as np
 
-    Camera = sub(pdic, "core.preview").Camera
+    Camera = sub(pdic, "core.camera_render").Camera
     cam = bpy.context.scene.camera
     if cam is None or cam.type != "CAMERA":
         raise ScriptError("--preview-png needs a scene camera (Scene > Camera is empty)")
@@ -248,7 +248,7 @@ def bake(args) -> int:
         print(f"manifest: {report.manifest_path}")
 
     if args.preview_png:
-        preview = sub(pdic, "core.preview")
+        preview = sub(pdic, "core.camera_render")
         start = time.perf_counter()
         camera, aspect = preview_camera(bpy, pdic, job.extraction.scene)
         width = max(int(args.preview_width), 8)

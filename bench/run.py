@@ -46,12 +46,15 @@ import bpy  # noqa: E402
 
 from pdic import pdic_addon  # noqa: E402
 from pdic.bench import scenes as bench_scenes  # noqa: E402
-from pdic.core import christensen  # noqa: E402
+from pdic.core import chr99_irradiance  # noqa: E402
 from pdic.core import texels as texel_stage  # noqa: E402
 from pdic.core.bake_cache import BakeCache  # noqa: E402
 from pdic.core.executor import Executor, Progress, default_workers  # noqa: E402
-from pdic.core.irradiance_cache import PhotonDensity  # noqa: E402
-from pdic.core.pipeline import bake, build_cache, cache_parameters, interpolate_filling_holes, trace_pass  # noqa: E402
+from pdic.core.density import PhotonDensity  # noqa: E402
+from pdic.core.hole_records import interpolate_filling_holes  # noqa: E402
+from pdic.core.irradiance_cache import cache_from_photons  # noqa: E402
+from pdic.core.photons import trace_pass  # noqa: E402
+from pdic.core.pipeline import bake, cache_parameters  # noqa: E402
 from pdic.core.rays import RayCaster  # noqa: E402
 from pdic.core.settings import preset  # noqa: E402
 from pdic.core.stats import BakeStats  # noqa: E402
@@ -365,8 +368,9 @@ def figure5(name, scene, photons, bounces, extra, ref, pair=None) -> dict:
         params = cache_parameters(scene, rasters, settings)
 
         def pdic_preview():
-            cache = build_cache(scene, lambda: caster, photon_map, params, settings, executor, progress, stats)
-            E, _, _, _ = interpolate_filling_holes(scene, caster, PhotonDensity(photon_map), cache, points.take(valid),
+            density = PhotonDensity(photon_map)
+            cache = cache_from_photons(density, params, settings.seed, progress, caster)[0]
+            E, _, _, _ = interpolate_filling_holes(scene, caster, density, None, cache, points.take(valid),
                                                    params, settings, executor, progress)
             return cache, E
 
@@ -398,8 +402,8 @@ def figure5(name, scene, photons, bounces, extra, ref, pair=None) -> dict:
 
 
 def _christensen(photon_map, points):
-    estimate = christensen.precompute_irradiance(photon_map)
-    return estimate, christensen.lookup(estimate, points.p, points.n_shading)
+    estimate = chr99_irradiance.precompute_irradiance(photon_map)
+    return estimate, chr99_irradiance.lookup(estimate, points.p, points.n_shading)
 
 
 # --------------------------------------------------------------------------- (c) scaling

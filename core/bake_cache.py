@@ -194,6 +194,14 @@ class BakeCache:
                     os.unlink(tmp)
                 raise
 
+    def memoise(self, kind: str, key: str, compute):
+        """The stored value of ``kind``/``key``, or ``compute()``'s, stored (the bake's one memo step)."""
+        value = self.get(kind, key)
+        if value is None:
+            value = compute()
+            self.put(kind, key, value)
+        return value
+
     def counters(self) -> dict:
         """Flat statistics: ``cache_hits_<kind>``, ``cache_misses_<kind>``."""
         out = {}
@@ -205,3 +213,19 @@ class BakeCache:
     def clear(self) -> None:
         """Forget the memory entries (files on disk stay)."""
         self._entries.clear()
+
+
+class NoBakeCache:
+    """Stands in for "no cache": computes everything, stores nothing, counts nothing (keys are empty)."""
+
+    def key(self, kind: str, *parts) -> str:
+        return ""
+
+    def get(self, kind: str, key: str):
+        return None
+
+    def memoise(self, kind: str, key: str, compute):
+        return compute()
+
+    def counters(self) -> dict:
+        return {}

@@ -17,12 +17,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .constants import SAME_SURFACE_COS, STREAM_CHR99_SUBSAMPLE
 from .photons import PhotonMap
 
 K_NEAREST = 64
 """Photons per irradiance estimate (Christensen uses 50-200)."""
-SAME_SURFACE_COS = 0.7
-"""Photons (and lookup candidates) count only within ~45 degrees of the receiver's normal."""
 LOOKUP_CANDIDATES = 8
 """Nearest precomputed points examined per lookup to find one with an agreeing normal."""
 LOOKUP_REACH = 2.0
@@ -65,7 +64,7 @@ def precompute_irradiance(photons: PhotonMap, k: int = K_NEAREST, fraction: floa
     indirect = np.flatnonzero(photons.is_indirect)
     if N == 0 or len(indirect) == 0:
         return PhotonIrradiance(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
-    rng = np.random.default_rng([seed, 99])
+    rng = np.random.default_rng([seed, STREAM_CHR99_SUBSAMPLE])
     m = max(1, int(round(fraction * N)))
     at = np.sort(rng.choice(N, size=min(m, N), replace=False))
     p_all = photons.p.astype(np.float64)

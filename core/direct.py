@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import sampling
+from .executor import TEXEL_CHUNK, slices
 from .rays import RayCaster
 from .scene import AreaLight, PointLight, Scene, SceneError, SpotLight, SunLight
 
@@ -265,11 +266,19 @@ def _point_like(out, kind, light, attenuation, caster, p, n_s, n_g, samples, rng
         ok &= weight > 0
         _add_samples(out, kind, light.name, caster, idx, p, n_g, q, weight, ok, P, samples)
         return
+    weight, ok, targets = _sphere_samples(u, pk, nsk, ngk, D[idx], c, r, attenuation)
+    _add_samples(out, kind, light.name, caster, idx, p, n_g, targets, weight, ok, P, samples)
 
-    # Sphere of radius r, radiance L = P / (4 pi^2 r^2): uniform cone toward it from outside
-    # (estimator L cos_s / pdf_omega); from inside, every direction of the hemisphere ends on it.
+
+def _sphere_samples(u, pk, nsk, ngk, D, c, r, attenuation):
+    """Shadow-ray samples (weight, ok (k, m), targets (k, m, 3)) toward a sphere light of radius r.
+
+    Radiance L = P / (4 pi^2 r^2) (P applied by the caller): a uniform cone toward the sphere
+    from outside (estimator L cos_s / pdf_omega); from inside, every direction of the
+    hemisphere ends on it.
+    """
     L = 1.0 / (4.0 * np.pi * np.pi * r * r)
-    outside = D[idx] > r
+    outside = D > r
     weight = np.zeros(u.shape[:2])
     ok = np.zeros(u.shape[:2], bool)
     targets = np.zeros(u.shape[:2] + (3,))
@@ -295,7 +304,7 @@ def _point_like(out, kind, light, attenuation, caster, p, n_s, n_g, samples, rng
         weight[i] = np.where(good, np.pi * L, 0.0)
         ok[i] = good
         targets[i] = pk[i][:, None, :] + t[..., None] * w
-    _add_samples(out, kind, light.name, caster, idx, p, n_g, targets, weight, ok, P, samples)
+    return weight, ok, targets
 
 
 # --------------------------------------------------------------------------- sun
@@ -444,3 +453,27 @@ def _world(out, scene: Scene, caster, p, n_s, n_g, samples, rng):
     ok = (_dot(n_g[:, None, :], w) > 0) & np.any(n_s != 0, axis=1)[:, None]
     weight = np.full(ok.shape, np.pi)
     _add_samples(out, "world", WORLD_KEY, caster, idx, p, n_g, None, weight, ok, L, samples, directions=w)
+
+
+def shade_direct(scene: Scene, caster: RayCaster, p: np.ndarray, n_shading: np.ndarray, n_geometric: np.ndarray,
+                 samples: int, seed: int, stream, executor, progress) -> tuple[np.ndarray, dict]:
+    """Direct irradiance (n, 3) at surface points, chunked over the executor, plus summed work counters.
+
+    stream : int or sequence of ints after ``seed`` in each chunk's generator
+        ``default_rng([seed, *stream, chunk])`` (core/constants.py lists the streams).
+    """
+    serial = caster.serial()
+    prefix = [seed, *np.atleast_1d(stream).tolist()]
+
+    def run(index, s):
+        rng = np.random.default_rng([*prefix, index])
+        return direct_irradiance(scene, serial, p[s], n_shading[s], n_geometric[s], samples, rng)
+
+    merged = DirectResult.concatenate(executor.map_chunks(run, slices(len(p), TEXEL_CHUNK), progress))
+    counters = {f"shadow_rays_{k}": v for k, v in merged.shadow_rays.items()}
+    counters["shadow_rays"] = sum(merged.shadow_rays.values())
+    counters["shadow_rays_skipped_points"] = sum(merged.skipped.values())
+    for light, skipped in merged.skipped.items():  # points that cast no ray toward this emitter
+        counters[f"shadow_rays_skipped_points:{light}"] = skipped
+    caster.rays_cast += counters["shadow_rays"]
+    return merged.E, counters

@@ -18,6 +18,10 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, Iterable
 
+TEXEL_CHUNK = 32_768
+"""Surface points (texel samples, photons) per chunk: about 0.05-0.5 s of work, so a cancel
+is noticed quickly and the chunks of one stage spread over the workers."""
+
 
 class Executor:
     """Maps a function over items, returning results in order.
@@ -33,6 +37,12 @@ class Executor:
         if self._pool is None:
             return [fn(item) for item in items]
         return list(self._pool.map(fn, items))
+
+    def map_chunks(self, fn: Callable, chunks: list, progress: "Progress | None" = None) -> list:
+        """The one chunk loop of the bake: ``fn(index, chunk)`` over ``chunks`` (slices, batches),
+        results in order, reporting progress (and noticing a cancel) after each chunk.
+        ``index`` is the chunk's position, which seeds its random stream."""
+        return map_chunks(self, fn, chunks, progress)
 
     def close(self):
         if self._pool is not None:
@@ -105,3 +115,27 @@ class Progress:
     def _emit(self, eta):
         if self.callback is not None:
             self.callback(self.stage, self.fraction, eta)
+
+
+def slices(n: int, size: int) -> list[slice]:
+    """Consecutive slices of ``range(n)`` of at most ``size`` items."""
+    return [slice(s, min(s + size, n)) for s in range(0, n, size)]
+
+
+def map_chunks(executor: "Executor", fn: Callable, chunks: list, progress: "Progress | None" = None) -> list:
+    """``fn(index, chunk)`` over ``chunks`` on ``executor``, results in order; reports the done
+    fraction to ``progress`` after every chunk (where a cancel is noticed)."""
+    lock = threading.Lock()
+    done = [0]
+
+    def run(job):
+        index, chunk = job
+        out = fn(index, chunk)
+        if progress is not None:
+            with lock:
+                done[0] += 1
+                fraction = done[0] / len(chunks)
+            progress.update(fraction)
+        return out
+
+    return executor.map(run, list(enumerate(chunks)))

@@ -17,7 +17,9 @@ from itertools import chain
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .irradiance_cache import IrradianceCache, beyond_wall, wall_clearance
+from .executor import TEXEL_CHUNK, slices
+from .irradiance_cache import IrradianceCache
+from .record_walls import beyond_wall, wall_clearance
 from .ward import accepted, record_estimate, ward_weight
 
 
@@ -92,3 +94,15 @@ class CacheLookup:
                 np.minimum.at(smallest, rows, self.zone[rec])
         E = np.divide(num, den[:, None], out=np.zeros_like(num), where=den[:, None] > 0)
         return E, den, smallest
+
+
+def interpolate(cache: IrradianceCache, a: float, gradients: bool, p: np.ndarray, n: np.ndarray, executor,
+                progress, with_zone: bool = False) -> tuple:
+    """Equation 3 at points p, n (m, 3), chunked over the executor: (E (m, 3), w_sum (m,)), plus
+    (m,) the smallest accepted zone radius ``with_zone`` (see :meth:`CacheLookup.irradiance_and_zone`)."""
+    lookup = CacheLookup(cache, a, gradients)
+    method = lookup.irradiance_and_zone if with_zone else lookup.irradiance
+    parts = executor.map_chunks(lambda index, s: method(p[s], n[s]), slices(len(p), TEXEL_CHUNK), progress)
+    if not parts:
+        parts = [(np.zeros((0, 3)), np.zeros(0), np.zeros(0))[:3 if with_zone else 2]]
+    return tuple(np.concatenate([part[i] for part in parts]) for i in range(len(parts[0])))

@@ -19,6 +19,7 @@ import numpy as np
 
 from . import emission
 from .albedo import albedo as albedo_at
+from .constants import STREAM_PHOTONS
 from .executor import Executor, Progress, serial_executor
 from .rays import RayCaster
 from .sampling import cosine_hemisphere, orthonormal_basis
@@ -28,9 +29,9 @@ BATCH_PHOTONS = 65_536
 """Photons emitted per batch: large enough to keep Embree busy, small enough to cancel within ~0.1 s."""
 
 
-@dataclass
+@dataclass(frozen=True)
 class PhotonMap:
-    """Stored photons, struct of arrays (N photons). See :attr:`BYTES_PER_PHOTON`.
+    """Stored photons, struct of arrays (N photons), immutable: pass 1's output, read by passes 2-3.
 
     p : (N, 3) float32 scene-local hit position.
     n : (N, 3) float32 unit geometric normal on the side the photon arrived from.
@@ -41,10 +42,10 @@ class PhotonMap:
     bounce : (N,) uint8 diffuse reflections before this hit: 0 = direct photon.
     triangle : (N,) int32 triangle hit.
     albedo : (N, 3) float32 linear albedo at the hit.
-    w_sum : (N,) float32 cumulative Ward weight of the records around the photon (section 3.1).
-    E_indirect_sum : (N, 3) float32 cumulative sum of w_k * E_k of those records.
-    E_direct : (N, 3) float32 direct irradiance at the photon from shadow rays.
     emitted : photons emitted (the budget actually used).
+
+    The arrays are flagged read-only. What passes 2 and 3 learn about each photon (the
+    section 3.1 fields) is a separate value, :class:`PhotonLighting`.
     """
 
     p: np.ndarray
@@ -56,19 +57,24 @@ class PhotonMap:
     bounce: np.ndarray
     triangle: np.ndarray
     albedo: np.ndarray
-    w_sum: np.ndarray
-    E_indirect_sum: np.ndarray
-    E_direct: np.ndarray
     emitted: int = 0
 
-    BYTES_PER_PHOTON = 12 * 4 + 4 + 4 + 1 + 4 + 12 + 4 + 12 + 12  # = 101
+    BYTES_PER_PHOTON = 12 * 4 + 4 + 4 + 1 + 4 + 12 + 4 + 12 + 12  # = 101 with its PhotonLighting (28)
+
+    def __post_init__(self):
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, np.ndarray):
+                value.flags.writeable = False
 
     def __len__(self) -> int:
         return len(self.p)
 
     @property
     def nbytes(self) -> int:
-        return sum(getattr(self, f.name).nbytes for f in fields(self) if isinstance(getattr(self, f.name), np.ndarray))
+        """Bytes of the map and of its :class:`PhotonLighting` (what a bake holds per photon)."""
+        return sum(getattr(self, f.name).nbytes for f in fields(self) if isinstance(getattr(self, f.name), np.ndarray)) \
+            + PhotonLighting.BYTES_PER_PHOTON * len(self)
 
     @property
     def is_indirect(self) -> np.ndarray:
@@ -80,6 +86,33 @@ class PhotonMap:
         """(N, 3) float64 the previous hit point p_lh = p + wi * d_prev (Figure 3)."""
         return self.p.astype(np.float64) + self.wi.astype(np.float64) * self.d_prev[:, None].astype(np.float64)
 
+    @staticmethod
+    def empty(emitted: int = 0) -> "PhotonMap":
+        return PhotonMap(*_allocate(0), emitted=emitted)
+
+
+@dataclass(frozen=True)
+class PhotonLighting:
+    """The section 3.1 fields of every photon (N photons): what passes 2 and 3 learn about it.
+
+    w_sum : (N,) float32 cumulative Ward weight of the records around the photon (Algorithm 1).
+    E_indirect_sum : (N, 3) float32 cumulative sum of w_k * E_k of those records.
+    E_direct : (N, 3) float32 direct irradiance at the photon from shadow rays (zero unless
+        pass 3 reuses photon paths, which reads it).
+    """
+
+    w_sum: np.ndarray
+    E_indirect_sum: np.ndarray
+    E_direct: np.ndarray
+
+    BYTES_PER_PHOTON = 4 + 12 + 12  # = 28
+
+    @staticmethod
+    def zeros(count: int) -> "PhotonLighting":
+        """Fresh sums for Algorithm 1 (zeros cost no resident memory until written)."""
+        return PhotonLighting(np.zeros(count, np.float32), np.zeros((count, 3), np.float32),
+                              np.zeros((count, 3), np.float32))
+
     def E_indirect(self, index: np.ndarray | None = None) -> np.ndarray:
         """(N, 3) float64 interpolated indirect irradiance at each photon from the cache (0 where uncovered).
 
@@ -89,21 +122,22 @@ class PhotonMap:
         w = self.w_sum[pick].astype(np.float64)[:, None]
         return np.divide(self.E_indirect_sum[pick].astype(np.float64), w, out=np.zeros((len(w), 3)), where=w > 0)
 
-    @staticmethod
-    def empty(emitted: int = 0) -> "PhotonMap":
-        return PhotonMap(*_allocate(0), emitted=emitted)
+    def radiance_out(self, albedo: np.ndarray) -> np.ndarray:
+        """(N, 3) float64 radiance leaving each photon, albedo x (E_direct + E_indirect) / pi, W/m^2/sr."""
+        E_total = self.E_direct.astype(np.float64) + self.E_indirect()
+        return albedo.astype(np.float64) * E_total / np.pi
 
 
 def _allocate(n: int) -> tuple:
     return (np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32),
             np.zeros((n, 3), np.float32), np.zeros(n, np.float32), np.full(n, -1, np.int32),
-            np.zeros(n, np.uint8), np.zeros(n, np.int32), np.zeros((n, 3), np.float32),
-            np.zeros(n, np.float32), np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32))
+            np.zeros(n, np.uint8), np.zeros(n, np.int32), np.zeros((n, 3), np.float32))
 
 
 @dataclass(frozen=True)
 class PhotonBatchResult:
-    photons: PhotonMap
+    photons: dict
+    """PhotonMap field name -> array of the batch, ``prev`` local to it."""
     rays: int
     escaped: int
 
@@ -166,15 +200,19 @@ def trace_photon_batch(scene: Scene, caster: RayCaster, origins: np.ndarray, dir
     return PhotonBatchResult(photons, rays, escaped)
 
 
-def _assemble(waves: list, count: int) -> PhotonMap:
-    pm = PhotonMap(*_allocate(count))
+def _assemble(waves: list, count: int) -> dict:
+    """The batch's columns (PhotonMap field name -> array), filled wave by wave."""
+    columns = dict(zip(_COLUMNS, _allocate(count)))
     start = 0
-    for p, n, wi, phi, t, prev, bounce, tri, rho in waves:
-        s = slice(start, start + len(p))
-        pm.p[s], pm.n[s], pm.wi[s], pm.power[s] = p, n, wi, phi
-        pm.d_prev[s], pm.prev[s], pm.bounce[s], pm.triangle[s], pm.albedo[s] = t, prev, bounce, tri, rho
+    for wave in waves:
+        s = slice(start, start + len(wave[0]))
+        for name, value in zip(_COLUMNS, wave):
+            columns[name][s] = value
         start = s.stop
-    return pm
+    return columns
+
+
+_COLUMNS = ("p", "n", "wi", "power", "d_prev", "prev", "bounce", "triangle", "albedo")
 
 
 def release_free_memory() -> None:
@@ -194,32 +232,25 @@ def release_free_memory() -> None:
         pass
 
 
-def concatenate(batches: list[PhotonMap], emitted: int) -> PhotonMap:
-    """Stitch batches into one map, offsetting each batch's path links.
+def concatenate(batches: list[dict], emitted: int) -> PhotonMap:
+    """Stitch batches (column dicts) into one map, offsetting each batch's path links.
 
     Field by field, releasing each batch's copy as soon as it is stitched, so the
     peak is the map plus one field of the batches rather than two whole maps.
     """
     if not batches:
         return PhotonMap.empty(emitted)
-    sizes = [len(b) for b in batches]
+    sizes = [len(b["p"]) for b in batches]
     starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
-    total = int(sum(sizes))
-    # The section 3.1 fields start at zero: fresh zeros cost no resident memory until
-    # written (Preview never writes E_direct), where stitching them would touch every page.
-    columns = {"w_sum": np.zeros(total, np.float32), "E_indirect_sum": np.zeros((total, 3), np.float32),
-               "E_direct": np.zeros((total, 3), np.float32)}
-    for f in fields(PhotonMap):
-        if f.name == "emitted" or f.name in columns:
-            continue
+    columns = {}
+    for name in _COLUMNS:
         parts = []
         for b, start in zip(batches, starts):
-            value = getattr(b, f.name)
-            if f.name == "prev":
+            value = b.pop(name)
+            if name == "prev":
                 value = np.where(value >= 0, value + start, -1).astype(np.int32)
             parts.append(value)
-            setattr(b, f.name, None)
-        columns[f.name] = np.concatenate(parts)
+        columns[name] = np.concatenate(parts)
         del parts
     return PhotonMap(**columns, emitted=emitted)
 
@@ -238,30 +269,37 @@ def trace_photons(scene: Scene, caster: RayCaster, photons: int, max_bounces: in
                   ) -> tuple[PhotonMap, PhotonTraceStats]:
     """Pass 1: emit ``photons`` from all lights in proportion to their power and trace them.
 
-    Returns the photon map (section 3.1 fields zeroed) and counters.
+    Returns the (immutable) photon map and counters.
     """
     executor = executor or serial_executor()
     plan = emission.plan(scene, photons)
     if plan.total == 0:
         return PhotonMap.empty(), PhotonTraceStats(0, 0, 0, 0, {})
-    batches = plan.batches(BATCH_PHOTONS)
     serial = caster.serial()
-    done = [0]
 
-    def run(job):
-        index, batch = job
-        rng = np.random.default_rng([seed, 1, index])
+    def run(index, batch):
+        rng = np.random.default_rng([seed, STREAM_PHOTONS, index])
         o, d, phi, n0 = emission.emit(scene, batch, rng)
-        result = trace_photon_batch(scene, serial, o, d, phi, n0, max_bounces, rng)
-        done[0] += 1
-        if progress is not None:
-            progress.update(done[0] / len(batches))
-        return result
+        return trace_photon_batch(scene, serial, o, d, phi, n0, max_bounces, rng)
 
-    results = executor.map(run, list(enumerate(batches)))
+    results = executor.map_chunks(run, plan.batches(BATCH_PHOTONS), progress)
     caster.rays_cast += sum(r.rays for r in results)
     photon_map = concatenate([r.photons for r in results], plan.total)
     release_free_memory()
     stats = PhotonTraceStats(plan.total, len(photon_map), sum(r.rays for r in results),
                              sum(r.escaped for r in results), plan.per_light())
     return photon_map, stats
+
+
+def trace_pass(scene: Scene, caster: RayCaster, settings, photon_bounces: int, executor: Executor,
+               progress: Progress, stats) -> PhotonMap:
+    """Pass 1 of a bake, with its progress stage and counters (``stats``: a BakeStats)."""
+    progress.begin("Pass 1: tracing photons")
+    with stats.stage("photons"):
+        photon_map, trace = trace_photons(scene, caster, settings.photons, photon_bounces, settings.seed,
+                                          executor, progress)
+    stats.set(photons_emitted=trace.emitted, photons_stored=trace.stored, photon_rays=trace.rays,
+              photons_escaped=trace.escaped, photon_emitters=len(trace.emitted_per_light),
+              max_bounces=settings.max_bounces, photon_bounces=photon_bounces, photon_bytes=photon_map.nbytes,
+              bytes_per_photon=PhotonMap.BYTES_PER_PHOTON)
+    return photon_map

@@ -6,9 +6,44 @@ these fields; :func:`preset` returns them.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
+
+from .constants import HOLE_ROUNDS
 
 QUALITIES = ("PREVIEW", "FINAL", "CUSTOM")
+
+
+@dataclass(frozen=True)
+class Deviations:
+    """Switches for the mechanisms beyond the paper (docs/DEVIATIONS.md describes each and what it
+    measured). The defaults are today's bake; turning one off runs the paper's step instead."""
+
+    texel_validity: bool = True
+    """Texel samples inside closed geometry get no indirect light and no hole record."""
+    wall_sectors: bool = True
+    """Records find the walls in their tangent plane; light is not interpolated past them."""
+    surface_coverage: bool = True
+    """Preview: E_k's kernel is normalised over the surface inside its disc (probe rays)."""
+    neighbour_clamp: bool = True
+    """R_k <= R_j + |p_k - p_j| between records ([KBPZ06])."""
+    probe_rays: bool = True
+    """Pass 3: a few real rays per record first; they bound which photons lend virtual rays."""
+    virtual_thinning: bool = True
+    """Pass 3: at most VIRTUAL_PER_CELL virtual rays per cell of a record, kept at random."""
+    zone_visibility: bool = True
+    """Pass 3: photons of a zone sector the record cannot see lend no virtual ray."""
+    harmonic_cell_radiance: bool = True
+    """Pass 3: a cell's virtual rays are averaged as the flux-weighted harmonic mean."""
+    nearest_photon_fallback: bool = True
+    """Pass 3: a gathering hit no record accepts takes the nearest visible photon's irradiance."""
+    gradient_limiting: bool = True
+    """Pass 3: |grad_t| <= E_k / (a R_k) and |grad_r| <= E_k."""
+    fine_zones: bool = True
+    """Texels inside narrow zones are interpolated per sample, not once at their centroid."""
+    hole_rounds: int = HOLE_ROUNDS
+    """Rounds of hole records (section 3.4); the paper places them once."""
+    nearest_record_fallback: bool = True
+    """Texel samples still uncovered after the hole rounds take the nearest record's E_k."""
 
 
 @dataclass(frozen=True)
@@ -66,6 +101,8 @@ class BakeSettings:
     """Seed of every random stream; the same seed gives the same light maps."""
     threads: int = 0
     """Worker threads; 0 = all cores."""
+    deviations: Deviations = field(default_factory=Deviations)
+    """Mechanisms beyond the paper, each switchable (docs/DEVIATIONS.md); defaults = all on."""
 
     def __post_init__(self):
         if self.quality not in QUALITIES:
@@ -83,15 +120,22 @@ class BakeSettings:
             "texel_samples": 1 <= self.texel_samples <= 8,
             "direct_samples": self.direct_samples >= 1,
             "threads": self.threads >= 0,
+            "deviations.hole_rounds": self.deviations.hole_rounds >= 0,
         }
         bad = [k for k, ok in checks.items() if not ok]
         if bad:
-            raise ValueError("invalid bake settings: " + ", ".join(f"{k}={getattr(self, k)!r}" for k in bad))
+            raise ValueError("invalid bake settings: " + ", ".join(f"{k}={_field(self, k)!r}" for k in bad))
 
     @property
     def refine(self) -> bool:
         """Run pass 3 (refinement)?"""
         return self.quality != "PREVIEW"
+
+
+def _field(settings, dotted: str):
+    for part in dotted.split("."):
+        settings = getattr(settings, part)
+    return settings
 
 
 def preset(quality: str, **overrides) -> BakeSettings:

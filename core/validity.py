@@ -1,11 +1,13 @@
 """Texel validity: is a texel sample inside closed geometry?
 
+deviation: texel-validity, docs/DEVIATIONS.md (switch ``Deviations.texel_validity``).
+
 Texels under an object resting on a surface (a box without a bottom on a
 floor) or in a gap thinner than the records' zones (a lamp panel just below
 a ceiling) see only back faces. No light reaches them, but Ward's
 interpolation would happily carry a neighbouring record's irradiance in
-(a light leak: measured 24 % indirect RMSE on the Cornell floor and ceiling
-before this test). A few hemisphere rays per sample tell them apart, as in
+(a light leak: 24 % indirect RMSE on the Cornell floor and ceiling without
+this test). A few hemisphere rays per sample tell them apart, as in
 production light mappers: a sample whose rays mostly hit back faces is
 inside geometry and receives no indirect light and no hole record.
 
@@ -19,13 +21,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from .constants import BACKFACE_FRACTION, VALIDITY_RAYS
+from .executor import TEXEL_CHUNK, slices
 from .rays import RayCaster
 from .sampling import cosine_hemisphere, orthonormal_basis
 
-VALIDITY_RAYS = 8
-"""Hemisphere rays per texel sample (at most)."""
-BACKFACE_FRACTION = 0.5
-"""A sample is inside geometry when more than this fraction of its rays hit back faces."""
 LATER_ROUND = 2
 """Rays per sample in each round after the first."""
 
@@ -68,3 +68,22 @@ def inside_geometry(caster: RayCaster, face_normals: np.ndarray, p: np.ndarray, 
         inside[open_[settled_inside]] = True
         open_ = open_[~(settled_inside | settled_outside)]
     return inside, cast
+
+
+def texel_validity(caster: RayCaster, points, seed: list, executor, progress) -> tuple[np.ndarray, int]:
+    """Which texel samples lie inside closed geometry, chunked over the executor: ((n,) bool, rays cast).
+
+    points : :class:`core.texels.TexelPoints`. seed : the generator prefix; chunk i draws from
+    ``default_rng([*seed, i])``.
+    """
+    serial = caster.serial()
+
+    def run(index, s):
+        return inside_geometry(serial, serial.face_normals, points.p[s], points.n_geometric[s],
+                               np.random.default_rng([*seed, index]))
+
+    parts = executor.map_chunks(run, slices(len(points), TEXEL_CHUNK), progress)
+    rays = sum(r for _, r in parts)
+    caster.rays_cast += rays
+    inside = np.concatenate([i for i, _ in parts]) if parts else np.zeros(0, bool)
+    return inside, rays

@@ -13,7 +13,8 @@ import pdic_bootstrap; pdic_bootstrap.load()
 import numpy as np
 from scenes import geometry, quad
 from pdic.core.executor import Executor
-from pdic.core.irradiance_cache import CacheParameters, PhotonDensity, generate_irradiance_cache
+from pdic.core.density import PhotonDensity
+from pdic.core.irradiance_cache import CacheParameters, cache_from_photons
 from pdic.core.photons import PhotonMap, trace_photons
 from pdic.core.rays import RayCaster
 from pdic.core.scene import Materials, PointLight, Scene, recentre
@@ -26,7 +27,7 @@ local, origin = recentre(tris)
 scene = Scene(geometry(local), Materials(("wall",), np.full((1, 3), 0.7), np.array([-1]), np.zeros((1, 3))),
               lights=(PointLight("lamp", np.array([0, 0, 0.3]), np.full(3, 10.0)),), origin_world=origin)
 photons, _ = trace_photons(scene, RayCaster(scene.geometry.positions), 1_240_000, 9, seed=0, executor=Executor(2))
-cache, _, _ = generate_irradiance_cache(PhotonDensity(photons), CacheParameters(0.4, 16, 0.03, 0.17), seed=0)
+cache, _, _, _ = cache_from_photons(PhotonDensity(photons), CacheParameters(0.4, 16, 0.03, 0.17), seed=0)
 # VmHWM: the peak resident set of this process's own address space. (ru_maxrss would not do: Linux
 # carries the pre-exec high-water mark into it, so it reports at least the parent's size at fork.)
 hwm_kb = next(int(line.split()[1]) for line in open("/proc/self/status") if line.startswith("VmHWM:"))

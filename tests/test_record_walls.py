@@ -6,8 +6,11 @@ estimate 1000x too high (the Figure 5 preview differed from [Chr99] by 1,694 %).
 """
 import numpy as np
 
-from pdic.core import christensen
-from pdic.core.irradiance_cache import WALL_RAYS, PhotonDensity, surface_coverage, wall_distances
+from pdic.core import chr99_irradiance
+from pdic.core.constants import WALL_RAYS
+from pdic.core.coverage import surface_coverage
+from pdic.core.density import PhotonDensity
+from pdic.core.record_walls import wall_distances
 from pdic.core.photons import trace_photons
 from pdic.core.rays import RayCaster
 from pdic.core.scene import Materials, PointLight, Scene
@@ -48,9 +51,9 @@ def test_a_record_walled_in_at_zero_gets_no_photons_rather_than_amplified_ones()
 def test_christensen_lookup_does_not_reach_through_to_far_estimates():
     # Two estimates 1 unit apart with small radii: a point beside the first takes its value, a
     # point in between, 0.5 away from either (many radii), takes nothing.
-    estimate = christensen.PhotonIrradiance(p=np.array([[0.0, 0, 0], [1.0, 0, 0]]), n=np.array([[0, 0, 1.0]] * 2),
+    estimate = chr99_irradiance.PhotonIrradiance(p=np.array([[0.0, 0, 0], [1.0, 0, 0]]), n=np.array([[0, 0, 1.0]] * 2),
                                             E=np.array([[3.0, 3, 3], [5.0, 5, 5]]), r=np.array([0.05, 0.05]))
-    E = christensen.lookup(estimate, np.array([[0.02, 0, 0], [0.5, 0, 0]]), np.array([[0, 0, 1.0]] * 2))
+    E = chr99_irradiance.lookup(estimate, np.array([[0.02, 0, 0], [0.5, 0, 0]]), np.array([[0, 0, 1.0]] * 2))
     assert np.allclose(E[0], 3.0)
     assert np.allclose(E[1], 0.0)
 
@@ -96,7 +99,8 @@ def test_gather_hits_outside_every_record_take_the_nearest_visible_photons_light
     # Pass 3 reads indirect light at its rays' hits from pass 2's records; where none accepts
     # the hit (a third of Sponza's hits) it must fall back to the nearest photon, not to 0, but
     # never to a photon on the other side of a wall.
-    from pdic.core.refinement import nearest_photon_irradiance
+    from pdic.core.photon_fallback import nearest_photon_irradiance
+    from pdic.core.photons import PhotonLighting
 
     floor = quad([-1, -1, 0], [2, 0, 0], [0, 2, 0])
     wall = quad([0.5, -1, 0], [0, 2, 0], [0, 0, 1])  # a wall standing on the floor at x = 0.5
@@ -106,12 +110,13 @@ def test_gather_hits_outside_every_record_take_the_nearest_visible_photons_light
                   lights=(PointLight("p", np.array([0.8, 0.0, 0.6]), np.full(3, 100.0)),))
     caster = RayCaster(tris)
     photons, _ = trace_photons(scene, caster, 5_000, 1, seed=4)
-    photons.w_sum[:] = 1.0
-    photons.E_indirect_sum[:] = 7.0
+    lighting = PhotonLighting.zeros(len(photons))
+    lighting.w_sum[:] = 1.0
+    lighting.E_indirect_sum[:] = 7.0
     density = PhotonDensity(photons)
     up = np.tile([0.0, 0, 1], (2, 1))
     beyond, near_wall = [0.8, 0.2, 0.0], [0.45, 0.0, 0.0]
-    E, rays = nearest_photon_irradiance(caster, density, np.array([beyond, near_wall]), up)
+    E, rays = nearest_photon_irradiance(caster, density, lighting, np.array([beyond, near_wall]), up)
     assert rays == 2
     assert np.allclose(E[0], 7.0)  # a photon nearby on the same side and in sight
     assert np.allclose(E[1], 0.0)  # the nearest same-side photons are behind the wall

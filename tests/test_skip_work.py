@@ -203,4 +203,4 @@ def test_reused_photon_map_serves_several_caches_without_mixing_them():
     # Back to the first parameters: its stored cache and photon fields were not overwritten.
     again = bake(scene, settings, cache=store)
     np.testing.assert_array_equal(first.lightmaps["floor"], again.lightmaps["floor"])
-    np.testing.assert_array_equal(first.photons.w_sum, again.photons.w_sum)
+    np.testing.assert_array_equal(first.photon_lighting.w_sum, again.photon_lighting.w_sum)

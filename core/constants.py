@@ -1,0 +1,114 @@
+"""Every threshold and random stream of the bake, named in one place (STYLE.md principle 17).
+
+Thresholds are grouped by what they decide; each says where its value comes from
+(the paper, a reference, or a measurement). Mechanisms beyond the paper are described in
+``docs/DEVIATIONS.md`` and switched by :class:`core.settings.Deviations`.
+
+Random streams: every random draw of a bake comes from
+``numpy.random.default_rng([seed, STREAM, ...chunk ids])``, so results depend on the seed
+and not on thread count or scheduling. The ids below are part of the golden outputs
+(``tools/golden.py``): changing one changes every light map that reads that stream.
+"""
+from __future__ import annotations
+
+# --------------------------------------------------------------------------- random streams
+STREAM_PHOTONS = 1
+"""Pass 1: photon emission and bounces, ``[seed, 1, batch]``."""
+STREAM_RECORD_ORDER = 2
+"""Pass 2: the random order Algorithm 1 walks the photons in, ``[seed, 2]``."""
+STREAM_HOLE_ORDER = 3
+"""Section 3.4: the order hole candidates are walked in, ``[seed, 3, round]``."""
+STREAM_REFINE = 4
+"""Pass 3: refinement of pass 2's records (gathering rays, thinning), ``[seed, 4, batch]``."""
+STREAM_DIRECT = 10
+"""Direct light at texel samples, ``[seed, 10, target stream, chunk]``."""
+STREAM_PHOTON_DIRECT = 11
+"""Direct light at photons (virtual rays' radiance), ``[seed, 11, chunk]``."""
+STREAM_VALIDITY = 12
+"""Texel validity rays, ``[seed, 12, target stream, chunk]``."""
+STREAM_REFINE_HOLES = 20
+"""Pass 3 on hole records of round r: ``[seed, 20 + r, batch]``."""
+STREAM_CHR99_SUBSAMPLE = 99
+"""The [Chr99] comparator's choice of photons to precompute at, ``[seed, 99]``."""
+
+# --------------------------------------------------------------------------- normal agreement
+SAME_SURFACE_COS = 0.7
+"""Photons count toward E_k (and coverage probes count as surface) only within ~45 degrees of
+n_k: rejects another wall of a corner and the far side of a thin wall (same value as [Chr99]'s
+lookups, which share the problem)."""
+R_K_SAME_SIDE_COS = 0.5
+"""Photons whose normal is within 60 degrees of n_k give R_k's last-hit distances (Figure 3):
+last hits of photons on another face of a corner say nothing about this record's view."""
+FALLBACK_SAME_SIDE_COS = 0.5
+"""The nearest-photon fallback takes a photon within 60 degrees of the hit's normal."""
+
+# --------------------------------------------------------------------------- floors
+R_K_DISTANCE_FLOOR = 1e-12
+"""Last-hit distances below this fraction of R_max count as this (keeps 1/d finite)."""
+WALL_MASS_FLOOR = 1e-3
+"""The least Epanechnikov mass a wall-cut disc keeps (E_k is divided by it)."""
+R_MIN_FLOOR = 1e-9
+"""R_min never falls below this fraction of the scene diagonal."""
+CELL_DISTANCE_FLOOR = 1e-3
+"""No gathering cell is nearer than this fraction of the smallest zone a R_min: a hit at
+(nearly) zero distance would make the translational gradient overflow."""
+ABOVE_PLANE = 1e-9
+"""A virtual ray's previous hit counts as above the record's tangent plane when its height
+exceeds this fraction of its distance."""
+RADIANCE_FLOOR = 1e-30
+"""Mean virtual-ray radiance below this counts as this in the flux-weighted harmonic mean."""
+
+# --------------------------------------------------------------------------- record walls (deviation: wall-sectors)
+WALL_RAYS = 8
+"""Azimuth sectors (one tangent-plane ray each) in which a record's zone ends at the nearest wall."""
+WALL_LIFT = 0.05
+"""Height of the wall rays above the surface, as a fraction of the zone radius."""
+WALL_MARGIN = 1e-3
+"""Relative margin that keeps the wall bound off exact ties with grid-aligned texel samples."""
+FAR_WALL = 1e6
+"""A sector ray that hit nothing stands in as a point this many times its neighbour's distance away."""
+SECTOR_OFFSET = 0.3819660112501051
+"""Sector grid rotation (radians, 1/phi^2): boundaries and rays never align with axis-aligned grids,
+where texel samples would sit exactly on a boundary and float noise would pick the sector."""
+TINY_WALL = 1e-30
+"""The nearest a wall may be: products of two such lengths stay normal float64."""
+
+# --------------------------------------------------------------------------- surface coverage (deviation: surface-coverage)
+COVERAGE_RINGS = 4
+COVERAGE_ANGLES = 8
+"""Probe points of surface_coverage: COVERAGE_RINGS equal-area rings of COVERAGE_ANGLES each."""
+COVERAGE_LIFT = 0.05
+"""Height above the tangent plane the coverage probes start from, as a fraction of the disc radius."""
+COVERAGE_FLOOR = 0.05
+"""The least kernel share a record is granted: at most 20x amplification of its photons."""
+
+# --------------------------------------------------------------------------- pass 2 density estimation
+R_OVERSAMPLE = 3
+"""Neighbours fetched per wanted indirect photon when estimating R_k."""
+
+# --------------------------------------------------------------------------- pass 3 gathering
+PROBE_RAYS = 16
+"""Real rays per record cast before reuse, stratified over the hemisphere (deviation: probe-rays)."""
+VIRTUAL_RADIUS = 0.5
+"""Photons lend virtual rays only within this fraction of the probe rays' harmonic-mean distance."""
+VIRTUAL_PER_CELL = 2.0
+"""Virtual rays kept per record, as a multiple of its cells (deviation: virtual-thinning)."""
+VISIBILITY_SECTORS = 8
+"""Azimuth sectors of a zone whose visibility from the record is tested with one ray each."""
+VISIBILITY_LIFT = 0.02
+"""Zone-visibility and fallback segments run this fraction of their length above the surface."""
+HOLE_NEIGHBOURS = 8
+"""Photons searched for one on the hit's side when no pass-2 record covers a gathering ray's hit."""
+PHOTON_DIRECT_SAMPLES = 2
+"""Shadow-ray samples per photon for its direct irradiance (section 3.1); noise averages over cells."""
+
+# --------------------------------------------------------------------------- light-map stage
+HOLE_ROUNDS = 3
+"""Rounds of hole records (section 3.4) before falling back to the nearest record."""
+FINE_ZONE_TEXELS = 4.0
+"""Texels whose smallest accepted zone of influence is narrower than this many texels are
+interpolated per sample rather than once at their centroid (deviation: fine-zones)."""
+VALIDITY_RAYS = 8
+"""Hemisphere rays per texel sample (at most) of the texel validity test."""
+BACKFACE_FRACTION = 0.5
+"""A sample is inside geometry when more than this fraction of its rays hit back faces."""

@@ -1,0 +1,96 @@
+"""The hemisphere cells of one batch of records being refined (pass 3, section 3.3).
+
+:class:`CellSums` accumulates what real and virtual rays bring to each cell (radiance, the
+rotational-gradient axis, the nearest hit) and to each record (1/distance for R_k), and turns
+the cells into E_k and its gradients ([WH92], :mod:`core.hemisphere`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .hemisphere import Hemisphere, gradient_to_world
+
+
+class CellSums:
+    """Running sums over B records x C cells (flat index record * C + cell).
+
+    L_sum, rot_sum : (B C, 3) weighted radiance and rotational-gradient axis (z x w) / cos.
+    count : (B C,) summed ray weights (rays per cell for real rays).
+    r_min : (B C,) nearest hit distance per cell.
+    inv_d_sum, inv_d_count : (B,) sums of 1 / distance and their counts (R_k's harmonic mean).
+    """
+
+    def __init__(self, records: int, hemisphere: Hemisphere):
+        self.B, self.H = records, hemisphere
+        size = records * hemisphere.cells
+        self.L_sum = np.zeros((size, 3))
+        self.rot_sum = np.zeros((size, 3))
+        self.count = np.zeros(size)
+        self.r_min = np.full(size, np.inf)
+        self.inv_d_sum = np.zeros(records)
+        self.inv_d_count = np.zeros(records)
+
+    @property
+    def size(self) -> int:
+        return len(self.count)
+
+    def add_rays(self, cell: np.ndarray, L: np.ndarray, w_local: np.ndarray, dist: np.ndarray,
+                 inv_weight: np.ndarray | None = None):
+        """Add rays to their cells: radiance, rotational-gradient axis (z x w)/cos, count, min distance.
+
+        With ``inv_weight`` (phi / L per ray) the cell's radiance becomes sum(phi) / sum(phi / L):
+        ray i enters with weight w_i = (phi_i / L_i) / mean over the cell, so sum(w_i L_i) / sum(w_i)
+        is exactly that harmonic mean (deviation: harmonic-cell-radiance).
+        """
+        size = self.size
+        if inv_weight is None:
+            w = np.ones(len(cell))
+        else:
+            total = np.bincount(cell, weights=inv_weight, minlength=size)
+            n = np.bincount(cell, minlength=size)
+            w = inv_weight / np.maximum(total[cell] / np.maximum(n[cell], 1), 1e-300)
+        for c in range(3):
+            self.L_sum[:, c] += np.bincount(cell, weights=w * L[:, c], minlength=size)
+        cos = np.maximum(w_local[:, 2], 1e-6)
+        self.rot_sum[:, 0] += np.bincount(cell, weights=w * -w_local[:, 1] / cos, minlength=size)
+        self.rot_sum[:, 1] += np.bincount(cell, weights=w * w_local[:, 0] / cos, minlength=size)
+        self.count += np.bincount(cell, weights=w, minlength=size)
+        np.minimum.at(self.r_min, cell, dist)
+
+    def add_distances(self, inv_sum: np.ndarray, inv_n: np.ndarray):
+        """Per-record sums (B,) of 1 / hit distance and hit counts."""
+        self.inv_d_sum += inv_sum
+        self.inv_d_count += inv_n
+
+    def empty_cells(self) -> np.ndarray:
+        """Flat indices of the cells no ray reached yet."""
+        return np.flatnonzero(self.count == 0)
+
+    def irradiance_and_gradients(self, t1, t2, n, r_floor: float) -> tuple:
+        """(E (B, 3) >= 0, grad_r, grad_t (B, 3, 3) world, R (B,) harmonic mean hit distance)."""
+        B, C = self.B, self.H.cells
+        L_cell = (self.L_sum / np.maximum(self.count, 1)[:, None]).reshape(B, C, 3)
+        rot_cell = (self.rot_sum / np.maximum(self.count, 1)[:, None]).reshape(B, C, 3)
+        # A hit at (nearly) zero distance would make the translational gradient overflow: no cell
+        # is nearer than r_floor (gradient limiting then caps what is left).
+        r_cell = np.maximum(self.r_min.reshape(B, C), r_floor)
+        E, g_r, g_t = self.H.irradiance_and_gradients(L_cell, r_cell, rot_cell)
+        R = np.divide(self.inv_d_count, self.inv_d_sum, out=np.full(B, np.inf), where=self.inv_d_sum > 0)
+        return np.maximum(E, 0.0), gradient_to_world(g_r, t1, t2, n), gradient_to_world(g_t, t1, t2, n), R
+
+
+def limit_gradients(E: np.ndarray, grad_t: np.ndarray, grad_r: np.ndarray, zone_radius: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Gradient limiting: extrapolation across a zone may change E_k by at most E_k.
+
+    deviation: gradient-limiting, docs/DEVIATIONS.md. Ward & Heckbert's translational gradient
+    divides by the distance of each cell's hit; near a corner that distance is tiny and a single
+    cell makes the gradient explode. Each channel's |grad_t| is capped at E_k / (a R_k) and
+    |grad_r| at E_k (per radian), as production irradiance caches do.
+    """
+    def cap(grad, limit):
+        norm = np.linalg.norm(grad, axis=2)  # (K, 3 channels)
+        scale = np.divide(limit, norm, out=np.ones_like(norm), where=norm > limit)
+        return grad * scale[..., None]
+
+    return cap(grad_t, E / np.maximum(zone_radius, 1e-300)[:, None]), cap(grad_r, E)

@@ -1,0 +1,104 @@
+"""Indirect light at texel samples: Equation 3 over the cache, with hole records (section 3.4).
+
+Samples no record accepts get new records placed on them (Algorithm 1's hole entry point,
+:func:`~core.irradiance_cache.cache_for_holes`), refined like pass 3's records at Final
+quality; HOLE_ROUNDS rounds of that (deviation: hole-rounds), then the nearest record's
+irradiance for what is still uncovered (deviation: nearest-record-fallback).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .constants import FINE_ZONE_TEXELS, STREAM_HOLE_ORDER, STREAM_REFINE_HOLES, STREAM_VALIDITY
+from .density import PhotonDensity
+from .executor import Executor, Progress
+from .interpolation import interpolate
+from .irradiance_cache import CacheParameters, IrradianceCache, cache_for_holes
+from .refinement import GatherSources, refine_records
+from .settings import BakeSettings
+from .validity import texel_validity
+
+
+def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: GatherSources | None,
+                       cache: IrradianceCache, points, texel_size: float, stream: int, params: CacheParameters,
+                       settings: BakeSettings, executor: Executor, progress: Progress, stats
+                       ) -> tuple[np.ndarray, IrradianceCache]:
+    """Texel validity, then Equation 3 with hole records for one target: (E (n, 3), its hole records).
+
+    points : the target's :class:`~core.texels.TexelPoints`; texel_size : world size of one texel.
+    sources : what refining hole records reads (Final quality), None for Preview.
+    """
+    E = np.zeros((len(points), 3))
+    if density is None or len(points) == 0:
+        return E, IrradianceCache()
+    progress.begin("Texel validity")
+    with stats.stage("validity"):
+        if settings.deviations.texel_validity:  # deviation: texel-validity, docs/DEVIATIONS.md
+            inside, rays = texel_validity(caster, points, [settings.seed, STREAM_VALIDITY, stream], executor,
+                                          progress)
+        else:
+            inside, rays = np.zeros(len(points), bool), 0
+    stats.add(texel_samples_inside_geometry=int(inside.sum()), validity_rays=rays)
+    valid = np.flatnonzero(~inside)
+    progress.begin("Interpolating the cache at texels")
+    with stats.stage("interpolate"):
+        valid_points = points.take(valid)
+        merged, sample_to_point = valid_points.per_texel()  # inside samples are not averaged in
+        E_merged, full, _, unfilled = interpolate_filling_holes(scene, caster, density, sources, cache, merged,
+                                                                params, settings, executor, progress)
+        E[valid] = E_merged[sample_to_point]
+        fine = _fine_samples(full, merged, sample_to_point, texel_size, params, settings, executor, progress)
+        if len(fine):
+            E_fine, w_fine = interpolate(full, params.a, settings.gradients, valid_points.p[fine],
+                                         valid_points.n_shading[fine], executor, progress)
+            covered = w_fine > 0
+            E[valid[fine[covered]]] = E_fine[covered]
+    stats.add(texel_points_interpolated=len(merged) + len(fine), texel_points_unfilled=unfilled)
+    return E, full.take(slice(len(cache), None))
+
+
+def _fine_samples(cache, merged, sample_to_point, texel_size, params, settings, executor, progress) -> np.ndarray:
+    """Samples whose texel lies in a zone narrower than FINE_ZONE_TEXELS texels (deviation: fine-zones).
+
+    There Equation 3 changes inside a texel (zone edges are steps), so every sample gets its own
+    lookup, as a 2x2 box filter would, instead of the texel's centroid value.
+    """
+    if not settings.deviations.fine_zones:
+        return np.zeros(0, np.int64)
+    _, _, smallest = interpolate(cache, params.a, settings.gradients, merged.p, merged.n_shading, executor,
+                                 progress, with_zone=True)
+    return np.flatnonzero((smallest < FINE_ZONE_TEXELS * texel_size)[sample_to_point])
+
+
+def interpolate_filling_holes(scene, caster, density: PhotonDensity, sources: GatherSources | None,
+                              cache: IrradianceCache, points, params: CacheParameters, settings: BakeSettings,
+                              executor: Executor, progress: Progress):
+    """Equation 3 at every texel sample; samples no record covers get new records (section 3.4).
+
+    Returns (E (m, 3), the cache with the hole records appended, hole records, samples left unfilled).
+    """
+    E, w = interpolate(cache, params.a, settings.gradients, points.p, points.n_shading, executor, progress)
+    hole_records = 0
+    for round_ in range(settings.deviations.hole_rounds):
+        holes = np.flatnonzero(w <= 0)
+        if len(holes) == 0:
+            break
+        progress.check()
+        cand_p, cand_n = points.p[holes], points.n_shading[holes]
+        new, zones, _ = cache_for_holes(density, cand_p, cand_n, params,
+                                        np.random.default_rng([settings.seed, STREAM_HOLE_ORDER, round_]),
+                                        existing=cache, caster=caster)
+        if settings.refine and len(new):
+            new, _ = refine_records(scene, caster, sources, new, zones, settings, params, executor, progress,
+                                    stream=STREAM_REFINE_HOLES + round_)
+        hole_records += len(new)
+        cache = cache.extend(new)
+        E_h, w_h = interpolate(cache, params.a, settings.gradients, cand_p, cand_n, executor, progress)
+        E[holes], w[holes] = E_h, w_h
+    unfilled = np.flatnonzero(w <= 0)
+    if len(unfilled) and len(cache) and settings.deviations.nearest_record_fallback:
+        # deviation: nearest-record-fallback, docs/DEVIATIONS.md (counted in the stats).
+        _, nearest = cKDTree(cache.p).query(points.p[unfilled])
+        E[unfilled] = cache.E[nearest]
+    return E, cache, hole_records, len(unfilled)

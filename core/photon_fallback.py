@@ -1,0 +1,43 @@
+"""Nearest-photon fallback for gathering hits no record accepts (pass 3).
+
+deviation: nearest-photon-fallback, docs/DEVIATIONS.md (switch
+``Deviations.nearest_photon_fallback``; off: such hits get no indirect light).
+
+The paper reads indirect light at a gathering ray's hit from the nearest photon ([Chr99]);
+this bake interpolates pass 2's records there instead (they respect record walls) and falls
+back to the nearest photon only where no record accepts the hit: pass 2's final neighbour clamp
+shrinks zones after placement, walls and Ward's test leave gaps.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .constants import FALLBACK_SAME_SIDE_COS, HOLE_NEIGHBOURS, VISIBILITY_LIFT
+from .density import PhotonDensity
+from .photons import PhotonLighting
+
+
+def nearest_photon_irradiance(caster, density: PhotonDensity, lighting: PhotonLighting, q: np.ndarray,
+                              n: np.ndarray) -> tuple[np.ndarray, int]:
+    """Pass 2's indirect irradiance of the nearest photon on the side ``n`` faces, if the hit sees it.
+
+    One visibility ray (both ends lifted as in :mod:`core.zone_visibility`) keeps a photon
+    behind a thin wall from lending its light (tests/test_stability.py).
+    q, n : (h, 3) hit points and unit normals facing the ray. Returns (E (h, 3) float64,
+    rays cast); E is 0 where none of the HOLE_NEIGHBOURS nearest photons is on that side or
+    the chosen one is hidden.
+    """
+    k = min(HOLE_NEIGHBOURS, len(density.p))
+    E = np.zeros((len(q), 3))
+    if len(q) == 0 or k == 0:
+        return E, 0
+    _, near = density.tree.query(q, k=k)
+    near = np.asarray(near).reshape(len(q), k)
+    same = np.einsum("hkj,hj->hk", density.n[near].astype(np.float64), n) > FALLBACK_SAME_SIDE_COS
+    found = np.flatnonzero(same.any(axis=1))
+    pick = near[found, np.argmax(same[found], axis=1)]
+    p_ph, n_ph = density.p[pick], density.n[pick].astype(np.float64)
+    lift = VISIBILITY_LIFT * np.linalg.norm(p_ph - q[found], axis=1)[:, None]
+    seen = caster.visible_between(q[found] + lift * n[found], None, p_ph + lift * n_ph, None)
+    E[found[seen]] = lighting.E_indirect(pick[seen])
+    return E, len(found)
