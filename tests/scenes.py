@@ -54,3 +54,44 @@ def furnace(albedo: float, radiance: float, subdivisions: int = 3) -> Scene:
     mats = Materials(("wall",), np.full((1, 3), albedo), np.array([-1]), np.full((1, 3), radiance))
     local, origin = recentre(tris)
     return Scene(geometry(local), mats, origin_world=origin)
+
+
+UV_QUAD = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], np.float32)
+"""Light-map UVs of a quad made by :func:`quad` (its own s, t)."""
+
+
+def box_faces() -> list:
+    """The inside of the unit box [0, 1]^3: floor, back, ceiling, front, left, right (normals inward)."""
+    return [quad([0, 0, 0], [1, 0, 0], [0, 1, 0]), quad([0, 1, 0], [1, 0, 0], [0, 0, 1]),
+            quad([0, 0, 1], [0, 1, 0], [1, 0, 0]), quad([0, 0, 0], [0, 0, 1], [1, 0, 0]),
+            quad([0, 0, 0], [0, 1, 0], [0, 0, 1]), quad([1, 0, 0], [0, 0, 1], [0, 1, 0])]
+
+
+def quad_scene(faces, targets: dict, lights, albedo: float = 0.7, emission=None, materials=None,
+               extra=None) -> Scene:
+    """A scene of quads in world space (recentred), some of them bake targets.
+
+    faces : quads, each (2, 3, 3) from :func:`quad`. targets : {name: (quad index, resolution)}.
+    lights : lights with world positions (moved into scene-local space here).
+    albedo : base colour of every material. emission, materials : (M, 3) radiance per material
+    and (T,) material index per triangle (default: one grey material).
+    extra : optional (k, 3, 3) occluder-only triangles appended after the quads.
+    """
+    from dataclasses import replace
+
+    tris = np.concatenate(faces)
+    if extra is not None:
+        tris = np.concatenate([tris, np.asarray(extra, float)])
+    local, origin = recentre(tris)
+    target = np.full(len(tris), -1, np.int32)
+    bake_targets = []
+    for i, (name, (face, res)) in enumerate(targets.items()):
+        target[2 * face:2 * face + 2] = i
+        bake_targets.append(BakeTarget(name, np.array([2 * face, 2 * face + 1]), UV_QUAD, res, res))
+    material = np.zeros(len(tris), np.int32) if materials is None else materials
+    M = int(material.max()) + 1
+    mats = Materials(tuple(f"m{i}" for i in range(M)), np.full((M, 3), albedo), np.full(M, -1),
+                     np.zeros((M, 3)) if emission is None else emission)
+    moved = tuple(replace(light, position=np.asarray(light.position, float) - origin) for light in lights)
+    return Scene(geometry(local, material, target), mats, lights=moved, targets=tuple(bake_targets),
+                 origin_world=origin)

@@ -9,42 +9,14 @@ import pytest
 from pdic.core.bake_cache import BakeCache
 from pdic.core.direct import EMISSIVE_KEY
 from pdic.core.pipeline import bake
-from pdic.core.scene import BakeTarget, Materials, PointLight, Scene, SpotLight, recentre
+from pdic.core.scene import PointLight, SpotLight
 from pdic.core.settings import preset
 
-from scenes import geometry, quad
+from scenes import box_faces, quad, quad_scene
 
-UV_QUAD = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], np.float32)
 FLOOR, BACK, CEILING = 0, 1, 2
-
-
-def _box_faces():
-    return [quad([0, 0, 0], [1, 0, 0], [0, 1, 0]), quad([0, 1, 0], [1, 0, 0], [0, 0, 1]),
-            quad([0, 0, 1], [0, 1, 0], [1, 0, 0]), quad([0, 0, 0], [0, 0, 1], [1, 0, 0]),
-            quad([0, 0, 0], [0, 1, 0], [0, 0, 1]), quad([1, 0, 0], [0, 0, 1], [0, 1, 0])]
-
-
-def _scene(faces, targets: dict, lights, emission=None, materials=None) -> Scene:
-    """Quads in world space; ``targets`` {name: (quad index, resolution)}; lights in world space."""
-    tris = np.concatenate(faces)
-    local, origin = recentre(tris)
-    target = np.full(len(tris), -1, np.int32)
-    bake_targets = []
-    for i, (name, (face, res)) in enumerate(targets.items()):
-        target[2 * face:2 * face + 2] = i
-        bake_targets.append(BakeTarget(name, np.array([2 * face, 2 * face + 1]), UV_QUAD, res, res))
-    material = np.zeros(len(tris), np.int32) if materials is None else materials
-    M = int(material.max()) + 1
-    mats = Materials(tuple(f"m{i}" for i in range(M)), np.full((M, 3), 0.7), np.full(M, -1),
-                     np.zeros((M, 3)) if emission is None else emission)
-    moved = tuple(_moved(light, origin) for light in lights)
-    return Scene(geometry(local, material, target), mats, lights=moved, targets=tuple(bake_targets),
-                 origin_world=origin)
-
-
-def _moved(light, origin):
-    from dataclasses import replace
-    return replace(light, position=np.asarray(light.position, float) - origin)
+_box_faces = box_faces
+_scene = quad_scene
 
 
 LAMP = PointLight("lamp", np.array([0.5, 0.5, 0.8]), np.full(3, 100.0))

@@ -13,40 +13,20 @@ from pdic.core.irradiance_cache import IrradianceCache, neighbour_clamp
 from pdic.core.photons import trace_photons
 from pdic.core.pipeline import bake
 from pdic.core.rays import RayCaster
-from pdic.core.scene import BakeTarget, Materials, PointLight, Scene, recentre
+from pdic.core.scene import BakeTarget, PointLight, Scene
 from pdic.core.settings import preset
 from pdic.core.ward import accepted, record_estimate, ward_weight
 
-from scenes import geometry, quad
+from scenes import UV_QUAD, box_faces, quad, quad_scene
 
-UV_QUAD = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], np.float32)
-
-
-def _box_faces() -> list:
-    """The inside of the unit box [0, 1]^3: floor, back, ceiling, front, left, right (normals inward)."""
-    return [quad([0, 0, 0], [1, 0, 0], [0, 1, 0]), quad([0, 1, 0], [1, 0, 0], [0, 0, 1]),
-            quad([0, 0, 1], [0, 1, 0], [1, 0, 0]), quad([0, 0, 0], [0, 0, 1], [1, 0, 0]),
-            quad([0, 0, 0], [0, 1, 0], [0, 0, 1]), quad([1, 0, 0], [0, 0, 1], [0, 1, 0])]
+_box_faces = box_faces
 
 
 def _scene(faces_world, target_faces, light_world, power, albedo=0.8, res=12, extra=None) -> Scene:
-    """Scene of quads (each (2, 3, 3), world coordinates); ``target_faces`` {name: quad index}.
-
-    extra : optional (k, 3, 3) occluder-only triangles appended after the quads.
-    """
-    tris = np.concatenate(faces_world)
-    if extra is not None:
-        tris = np.concatenate([tris, np.asarray(extra, float)])
-    local, origin = recentre(tris)
-    target = np.full(len(tris), -1, np.int32)
-    targets = []
-    for i, (name, face) in enumerate(target_faces.items()):
-        target[2 * face:2 * face + 2] = i
-        targets.append(BakeTarget(name, np.array([2 * face, 2 * face + 1]), UV_QUAD, res, res))
-    mats = Materials(("m",), np.full((1, 3), albedo), np.array([-1]), np.zeros((1, 3)))
-    light = PointLight("lamp", np.asarray(light_world, float) - origin, np.full(3, float(power)))
-    return Scene(geometry(local, np.zeros(len(tris), np.int32), target), mats, lights=(light,),
-                 targets=tuple(targets), origin_world=origin)
+    """Quads in world space, ``target_faces`` {name: quad index}, one point lamp (tests/scenes.py)."""
+    lamp = PointLight("lamp", np.asarray(light_world, float), np.full(3, float(power)))
+    return quad_scene(faces_world, {name: (face, res) for name, face in target_faces.items()}, [lamp],
+                      albedo=albedo, extra=extra)
 
 
 def _box(scale=1.0, offset=0.0, power=100.0, **kw) -> Scene:

@@ -1,0 +1,80 @@
+"""Every mechanism beyond the paper has a switch (docs/DEVIATIONS.md): off, it does no work."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from pdic.core.pipeline import bake
+from pdic.core.scene import PointLight
+from pdic.core.settings import Deviations, preset
+
+from scenes import box_faces, quad_scene
+
+LAMP = PointLight("lamp", np.array([0.5, 0.5, 0.8]), np.full(3, 100.0))
+FINAL = preset("FINAL", photons=4000, max_bounces=3, threads=1, hemisphere_theta=6, hemisphere_phi=12)
+
+
+def _box():
+    # 24 texels: R_min (2 texels) is below R_max, so zones differ in size
+    return quad_scene(box_faces(), {"floor": (0, 24), "back": (1, 24)}, [LAMP])
+
+
+def _bake(settings, **switches):
+    result = bake(_box(), replace(settings, deviations=Deviations(**switches)))
+    for name, image in result.lightmaps.items():
+        assert np.isfinite(image).all(), name
+    return result, result.stats["counters"]
+
+
+@pytest.fixture(scope="module")
+def default():
+    return _bake(FINAL)
+
+
+@pytest.mark.parametrize("switch, counter", [
+    ("texel_validity", "validity_rays"),
+    ("probe_rays", "refine_probe_rays"),
+    ("zone_visibility", "refine_visibility_rays"),
+    ("wall_sectors", "refine_wall_rays"),
+])
+def test_a_deviation_switched_off_casts_none_of_its_rays(default, switch, counter):
+    assert default[1][counter] > 0
+    _, counters = _bake(FINAL, **{switch: False})
+    assert counters[counter] == 0
+
+
+def test_without_wall_sectors_pass_2_casts_no_wall_rays():
+    _, counters = _bake(preset("PREVIEW", photons=4000, max_bounces=3, threads=1), wall_sectors=False,
+                        surface_coverage=False)
+    assert counters["wall_rays"] == 0
+
+
+def test_without_thinning_every_zone_photon_lends_a_virtual_ray():
+    # 8 cells and whole zones (no probe radius): zones hold more than 16 photons
+    coarse = replace(FINAL, photons=20_000, hemisphere_theta=2, hemisphere_phi=4)
+    _, thinned = _bake(coarse, probe_rays=False)
+    _, every = _bake(coarse, probe_rays=False, virtual_thinning=False)
+    assert every["refine_virtual_rays"] > thinned["refine_virtual_rays"]
+
+
+@pytest.mark.parametrize("switch", ["harmonic_cell_radiance", "gradient_limiting", "neighbour_clamp",
+                                    "nearest_photon_fallback", "fine_zones"])
+def test_switching_a_deviation_off_changes_the_bake_and_keeps_it_finite(default, switch):
+    result, _ = _bake(FINAL, **{switch: False})
+    changed = any(not np.array_equal(result.lightmaps[n], default[0].lightmaps[n]) for n in result.lightmaps)
+    cache, before = result.cache, default[0].cache
+    records_changed = len(cache) != len(before) or not np.array_equal(cache.R, before.R)
+    assert changed or records_changed
+
+
+def test_zero_hole_rounds_place_no_hole_records():
+    _, counters = _bake(FINAL, hole_rounds=0)
+    assert counters["hole_records"] == 0
+
+
+def test_default_deviations_are_todays_bake(default):
+    result, _ = _bake(FINAL, **{f: getattr(Deviations(), f) for f in Deviations.__dataclass_fields__})
+    for name in result.lightmaps:
+        np.testing.assert_array_equal(result.lightmaps[name], default[0].lightmaps[name])
