@@ -15,13 +15,13 @@ radiance (W/m^2/sr).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Union
 
 import numpy as np
 
+from .lights import AreaLight, EmissiveMesh, Light, PointLight, SceneError, SpotLight, SunLight, World
 
-class SceneError(ValueError):
-    """Bad input that makes a bake impossible; the message names the culprit."""
+__all__ = ["AreaLight", "BakeTarget", "EmissiveMesh", "Geometry", "Light", "Materials", "PointLight", "Scene",
+           "SceneError", "SpotLight", "SunLight", "Texture", "World", "recentre", "unit_face_normals"]
 
 
 def _require(array: np.ndarray, name: str, dtype, shape_tail: tuple) -> np.ndarray:
@@ -159,95 +159,8 @@ class Materials:
 
 
 # --------------------------------------------------------------------------- lights
-# All light colours are linear RGB multiplied into the power; directions are unit
-# vectors in scene-local space. Every light emits from the side it faces.
-@dataclass(frozen=True)
-class PointLight:
-    """Point light; with ``radius`` > 0 a sphere light (Blender's soft radius).
-
-    power : (3,) watts per channel. Irradiance at distance d facing it: P / (4 pi d^2).
-    """
-
-    name: str
-    position: np.ndarray
-    power: np.ndarray
-    radius: float = 0.0
-    soft_falloff: bool = True
-    """Blender's Soft Falloff: with a radius, a Lambertian disc facing the receiver (on) or a sphere (off)."""
-
-
-@dataclass(frozen=True)
-class SpotLight:
-    """Spot light: a point light masked by a cone (power is that of the full sphere, as Blender).
-
-    direction : (3,) unit axis of the cone.
-    half_angle : radians, half of Blender's ``spot_size``.
-    blend : [0, 1], Blender's ``spot_blend`` (smoothstep edge width).
-    """
-
-    name: str
-    position: np.ndarray
-    direction: np.ndarray
-    power: np.ndarray
-    half_angle: float
-    blend: float
-    radius: float = 0.0
-    soft_falloff: bool = True
-
-
-@dataclass(frozen=True)
-class SunLight:
-    """Directional light. ``direction`` points *from* the scene *towards* the sun.
-
-    irradiance : (3,) W/m^2 on a surface facing the sun (Blender's strength x colour).
-    half_angle : radians, half of Blender's ``angle`` (angular diameter).
-    """
-
-    name: str
-    direction: np.ndarray
-    irradiance: np.ndarray
-    half_angle: float = 0.0
-
-
-@dataclass(frozen=True)
-class AreaLight:
-    """One-sided area light emitting along ``normal`` with uniform radiance.
-
-    shape : "SQUARE", "RECTANGLE", "DISK" or "ELLIPSE".
-    axis_u, axis_v : (3,) unit in-plane axes; ``size_u``, ``size_v`` the full extents
-        (diameters for DISK/ELLIPSE) in scene units.
-    radiance : (3,) W/m^2/sr; Blender's power P gives radiance P / (pi * area).
-    """
-
-    name: str
-    position: np.ndarray
-    normal: np.ndarray
-    axis_u: np.ndarray
-    axis_v: np.ndarray
-    size_u: float
-    size_v: float
-    shape: str
-    radiance: np.ndarray
-
-    @property
-    def area(self) -> float:
-        if self.shape in ("DISK", "ELLIPSE"):
-            return float(np.pi * 0.25 * self.size_u * self.size_v)
-        return float(self.size_u * self.size_v)
-
-
-Light = Union[PointLight, SpotLight, SunLight, AreaLight]
-
-
-@dataclass(frozen=True)
-class World:
-    """Uniform environment: radiance (3,) W/m^2/sr. An unoccluded surface receives E = pi * radiance."""
-
-    radiance: np.ndarray = field(default_factory=lambda: np.zeros(3, np.float32))
-
-    @property
-    def is_black(self) -> bool:
-        return not np.any(np.asarray(self.radiance) > 0)
+# The light types and the world live in core/lights.py (one interface: flux, emit,
+# sample_toward); they are re-exported here, where the extraction builds them.
 
 
 # --------------------------------------------------------------------------- bake targets
@@ -315,10 +228,20 @@ class Scene:
         emits = np.any(self.materials.emission > 0, axis=1)
         return np.flatnonzero(emits[self.geometry.material])
 
+    def emitters(self) -> tuple:
+        """Every emitter behind the light interface (core/lights.py), in a fixed order: the lights,
+        then the emissive triangles (if any), then the world (unless black)."""
+        out = list(self.lights)
+        triangles = self.emissive_triangles
+        if len(triangles):
+            out.append(EmissiveMesh(self.geometry, self.materials, triangles))
+        if not self.world.is_black:
+            out.append(self.world)
+        return tuple(out)
+
     def has_light(self) -> bool:
         """True if anything in the scene emits: a light with power, an emissive triangle or the world."""
-        powered = any(np.any(np.asarray(getattr(l, "power", getattr(l, "irradiance", getattr(l, "radiance", 0)))) > 0) for l in self.lights)
-        return powered or len(self.emissive_triangles) > 0 or not self.world.is_black
+        return any(emitter.emits() for emitter in self.emitters())
 
 
 def recentre(positions_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
