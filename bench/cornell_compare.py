@@ -23,33 +23,16 @@ import pdic_bootstrap  # noqa: E402
 pdic_bootstrap.load()
 import bpy  # noqa: E402
 
-from pdic.bench.cycles_reference import cycles_bake_full  # noqa: E402
+from pdic.bench.cycles_reference import DIRECT_SPP, reference  # noqa: E402,F401
 from pdic.core.pipeline import bake  # noqa: E402
 from pdic.core.settings import preset  # noqa: E402
 from pdic.pdic_addon.extract import extract_scene  # noqa: E402
-
-
-DIRECT_SPP = 256
 
 
 def relative_rmse(test: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> float:
     """sqrt(mean (test - ref)^2) / mean(ref) over masked texels, luminance-free (all channels)."""
     d = (test[mask] - ref[mask]) ** 2
     return float(np.sqrt(d.mean()) / max(ref[mask].mean(), 1e-30))
-
-
-def reference(objects, res, spp, passes, bounces, cache_dir: Path, tag: str):
-    path = cache_dir / f"{tag}_{res}_{spp}_{bounces}_{'_'.join(sorted(passes))}.npz"
-    if path.exists():
-        data = np.load(path)
-        return {k[4:]: data[k] for k in data if k.startswith("img_")}, {k[4:]: data[k] for k in data if k.startswith("cov_")}, float(data["seconds"])
-    t = time.perf_counter()
-    result = cycles_bake_full(objects, "LightMap", res, res, set(passes), spp, diffuse_bounces=bounces)
-    seconds = time.perf_counter() - t
-    cache_dir.mkdir(parents=True, exist_ok=True)
-    np.savez(path, seconds=seconds, **{f"img_{k}": v for k, v in result.images.items()},
-             **{f"cov_{k}": v for k, v in result.coverage.items()})
-    return result.images, result.coverage, seconds
 
 
 def main(argv=None):

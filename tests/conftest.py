@@ -13,6 +13,11 @@ import pdic_bootstrap  # noqa: E402
 pdic_bootstrap.load()
 
 SHARED = ROOT.parent / "shared"
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "slow: takes tens of seconds (millions of photons, Cycles references, "
+                                       "whole-scene bakes); skip with -m 'not slow' while iterating")
 SCENES = SHARED / "scenes"
 
 

@@ -21,7 +21,7 @@ RESOLUTION, SPP, BOUNCES = 64, 16384, 4
 def cornell():
     import bpy
 
-    from pdic.bench import cornell_compare as cc
+    import cycles_reference as cc
     from pdic.pdic_addon.extract import extract_scene
 
     bpy.ops.wm.open_mainfile(filepath=str(ROOT / "sample_blends" / "cornell_point.blend"))
@@ -44,6 +44,7 @@ def _errors(result, direct, indirect, coverage):
     return rmse(pick(result.lightmaps), ref_all), rmse(pick(result.indirect), ref_ind)
 
 
+@pytest.mark.slow
 def test_preview_cache_is_within_15_percent_of_cycles_and_leaves_no_texel_dark(cornell):
     from pdic.core.pipeline import bake
     from pdic.core.settings import preset
@@ -57,6 +58,7 @@ def test_preview_cache_is_within_15_percent_of_cycles_and_leaves_no_texel_dark(c
     assert counters["records"] > 500 and "refine_cells" not in counters  # pass 3 skipped in Preview
 
 
+@pytest.mark.slow
 def test_final_matches_cycles_within_3_percent_overall_and_8_percent_indirect(cornell):
     from pdic.core.pipeline import bake
     from pdic.core.settings import preset
@@ -68,6 +70,7 @@ def test_final_matches_cycles_within_3_percent_overall_and_8_percent_indirect(co
     assert err_indirect <= 0.08
 
 
+@pytest.mark.slow
 def test_photon_path_reuse_casts_35_percent_fewer_rays_at_no_loss_of_accuracy(cornell):
     # The paper's Table 2 setting: 250k photons, 4 bounces, a few hundred cells per record.
     from pdic.core.pipeline import bake

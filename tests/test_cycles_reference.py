@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from pdic.bench import cycles_reference as cr
+import cycles_reference as cr
 
 
 def _plane(bpy, name="Plane", size=2.0, location=(0.0, 0.0, 0.0), material=True):

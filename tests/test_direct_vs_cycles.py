@@ -29,7 +29,7 @@ import time
 import numpy as np
 import pytest
 
-from pdic.bench import cycles_reference as cr
+import cycles_reference as cr
 from pdic.pdic_addon import job as job_module
 from pdic.pdic_addon import writeback
 from pdic.pdic_addon.uvmaps import LIGHTMAP_UV
@@ -207,6 +207,7 @@ CASES = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", list(CASES))
 def test_direct_light_matches_cycles_bake(blender, registered, tmp_path, kind):
     direct_samples, cycles_samples, noise_bound = CASES[kind]
@@ -275,6 +276,7 @@ UNIT_CASES = ("point_exposure_colour_normalize_off", "hard_spot_normalize_off", 
               "scaled_rectangle_normalize_off", "sphere_light_without_soft_falloff", "warm_blackbody_point")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", UNIT_CASES)
 def test_light_units_follow_cycles_for_exposure_colour_and_normalize(blender, registered, tmp_path, case):
     """Exposure (2**exposure), colour, blackbody, ``normalize`` off and soft falloff off, each

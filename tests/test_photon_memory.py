@@ -4,6 +4,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 SCRIPT = r"""
@@ -36,6 +38,7 @@ print(json.dumps({"stored": len(photons), "records": len(cache), "bytes_per_phot
 """
 
 
+@pytest.mark.slow
 def test_four_million_photons_fit_in_one_gigabyte_through_pass_2():
     out = subprocess.run([sys.executable, "-c", SCRIPT, str(ROOT)], capture_output=True, text=True, check=True)
     result = json.loads(out.stdout.strip().splitlines()[-1])

@@ -172,7 +172,7 @@ def test_textured_room_sun_shines_through_the_window(blender, generated):
 
 def test_cornell_point_floor_below_the_light_bakes_ten_over_pi_squared(blender, generated):
     """P = 10 W at d = 0.5 m: E = P / (4 pi d^2), a texel holds E / pi = 10 / pi^2 = 1.013."""
-    from pdic.bench.cycles_reference import cycles_bake
+    from cycles_reference import cycles_bake
 
     bpy = _open(blender, generated["cornell_point.blend"])
     floor = cycles_bake([bpy.data.objects["Floor"]], "LightMap", 32, 32, {"DIRECT"}, samples=16)["Floor"]

@@ -4,6 +4,8 @@
 #   bash tools/test.sh                              # the whole suite (tests/)
 #   bash tools/test.sh tests/test_packaging.py -x   # paths and pytest options pass through
 #   bash tools/test.sh -k manifest                  # options only: still runs tests/
+#   bash tools/test.sh -m "not slow"                # leave out the slow tests (marker in conftest.py)
+# The 15 slowest tests are listed at the end (--durations=15).
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -18,4 +20,4 @@ for arg in "$@"; do
         break
     fi
 done
-exec "$ROOT/.venv/bin/python" -m pytest "${targets[@]}" -q "$@"
+exec "$ROOT/.venv/bin/python" -m pytest "${targets[@]}" -q --durations=15 "$@"
