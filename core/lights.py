@@ -106,8 +106,18 @@ def scene_sphere(scene) -> tuple[np.ndarray, float]:
     return centre, max(float(np.linalg.norm(p - centre, axis=1).max()), 1e-12)
 
 
+class _Lamp:
+    """What the four lamp types share: they emit when their colour quantity is positive somewhere."""
+
+    photon_kind = "light"
+    colour_field = "power"
+
+    def emits(self) -> bool:
+        return bool(np.any(np.asarray(getattr(self, self.colour_field)) > 0))
+
+
 @dataclass(frozen=True)
-class PointLight:
+class PointLight(_Lamp):
     """Point light; with ``radius`` > 0 a sphere light (Blender's soft radius).
 
     power : (3,) watts per channel. Irradiance at distance d facing it: P / (4 pi d^2).
@@ -119,11 +129,6 @@ class PointLight:
     radius: float = 0.0
     soft_falloff: bool = True
     """Blender's Soft Falloff: with a radius, a Lambertian disc facing the receiver (on) or a sphere (off)."""
-
-    photon_kind = "light"
-
-    def emits(self) -> bool:
-        return bool(np.any(np.asarray(self.power) > 0))
 
     def flux(self, scene) -> np.ndarray:
         return np.asarray(self.power, np.float64)
@@ -139,7 +144,7 @@ class PointLight:
 
 
 @dataclass(frozen=True)
-class SpotLight:
+class SpotLight(_Lamp):
     """Spot light: a point light masked by a cone (power is that of the full sphere, as Blender).
 
     direction : (3,) unit axis of the cone.
@@ -155,11 +160,6 @@ class SpotLight:
     blend: float
     radius: float = 0.0
     soft_falloff: bool = True
-
-    photon_kind = "light"
-
-    def emits(self) -> bool:
-        return bool(np.any(np.asarray(self.power) > 0))
 
     def flux(self, scene) -> np.ndarray:
         """P / (4 pi) x the integral of the cone attenuation over the cone."""
@@ -184,7 +184,7 @@ class SpotLight:
 
 
 @dataclass(frozen=True)
-class SunLight:
+class SunLight(_Lamp):
     """Directional light. ``direction`` points *from* the scene *towards* the sun.
 
     irradiance : (3,) W/m^2 on a surface facing the sun (Blender's strength x colour).
@@ -196,10 +196,7 @@ class SunLight:
     irradiance: np.ndarray
     half_angle: float = 0.0
 
-    photon_kind = "light"
-
-    def emits(self) -> bool:
-        return bool(np.any(np.asarray(self.irradiance) > 0))
+    colour_field = "irradiance"
 
     def flux(self, scene) -> np.ndarray:
         """S x the cross-section of the scene's bounding sphere."""
@@ -226,7 +223,7 @@ class SunLight:
 
 
 @dataclass(frozen=True)
-class AreaLight:
+class AreaLight(_Lamp):
     """One-sided area light emitting along ``normal`` with uniform radiance.
 
     shape : "SQUARE", "RECTANGLE", "DISK" or "ELLIPSE".
@@ -251,10 +248,7 @@ class AreaLight:
             return float(np.pi * 0.25 * self.size_u * self.size_v)
         return float(self.size_u * self.size_v)
 
-    photon_kind = "light"
-
-    def emits(self) -> bool:
-        return bool(np.any(np.asarray(self.radiance) > 0))
+    colour_field = "radiance"
 
     def flux(self, scene) -> np.ndarray:
         return np.asarray(self.radiance, np.float64) * np.pi * self.area

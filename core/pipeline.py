@@ -114,8 +114,15 @@ class _Run:
     stats: BakeStats
     store: BakeCache | NoBakeCache
     _caster: RayCaster | None = None
+    _transport: str | None = None
     density: PhotonDensity | None = None
     """Pass 2's photon kd-tree when this run built it (hole records reuse it: it costs seconds)."""
+
+    def transport(self) -> str:
+        """Hash of what light transport depends on (memo keys); empty without a cache to key."""
+        if self._transport is None:
+            self._transport = transport_key(self.scene) if isinstance(self.store, BakeCache) else ""
+        return self._transport
 
     def caster(self) -> RayCaster:
         """The BVH, built the first time some stage casts rays."""
@@ -221,7 +228,6 @@ def shade_direct_at_targets(run: "_Run", targets: list[TargetTexels]) -> None:
     settings, stats, store = run.settings, run.stats, run.store
     if not settings.direct:
         return
-    transport = transport_key(run.scene) if isinstance(store, BakeCache) else ""
     shaded = []
 
     def shade(t: TargetTexels):
@@ -237,7 +243,7 @@ def shade_direct_at_targets(run: "_Run", targets: list[TargetTexels]) -> None:
         return E
 
     for t in targets:
-        key = store.key("direct", transport, t.key, settings.direct_samples, settings.seed)
+        key = store.key("direct", run.transport(), t.key, settings.direct_samples, settings.seed)
         t.E_direct = store.memoise("direct", key, lambda: shade(t))
     stats.set(targets_shaded_direct=len(shaded))
 
@@ -250,8 +256,7 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
     the photons' lighting."""
     settings, store = run.settings, run.store
     photon_bounces = settings.max_bounces - 1 if settings.refine else settings.max_bounces
-    transport = transport_key(run.scene) if isinstance(store, BakeCache) else ""
-    photon_key = store.key("photons", transport, settings.photons, photon_bounces, settings.seed)
+    photon_key = store.key("photons", run.transport(), settings.photons, photon_bounces, settings.seed)
     cache_key = store.key("cache", photon_key, params, settings.refine, settings.hemisphere_theta,
                           settings.hemisphere_phi, settings.reuse_photon_paths)
     passes: list = []  # (cache, photons, lighting) once computed or read, plus what holes read
