@@ -80,7 +80,7 @@ def interpolate_filling_holes(scene, caster, density: PhotonDensity, sources: Ga
     """
     E, w = interpolate(cache, params.a, settings.gradients, points.p, points.n_shading, executor, progress)
     hole_records = 0
-    for round_ in range(settings.deviations.hole_rounds):
+    for round_ in range(settings.deviations.hole_rounds):  # deviation: hole-rounds, docs/DEVIATIONS.md
         holes = np.flatnonzero(w <= 0)
         if len(holes) == 0:
             break

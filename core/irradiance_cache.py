@@ -158,7 +158,7 @@ def cache_from_photons(density: PhotonDensity, params: CacheParameters, seed: in
     cache, zones, stats = place_records(density, density.p, density.n, lighting.w_sum, lighting.E_indirect_sum,
                                         params, np.random.default_rng([seed, STREAM_RECORD_ORDER]),
                                         candidate_is_photon=True, progress=progress, caster=caster)
-    if params.neighbour_clamp:
+    if params.neighbour_clamp:  # deviation: neighbour-clamp, docs/DEVIATIONS.md
         cache.R = neighbour_clamp(cache.p, cache.R)
     return cache, zones, lighting, stats
 

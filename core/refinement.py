@@ -108,10 +108,10 @@ def refine_records(scene, caster, sources: GatherSources, cache: IrradianceCache
         for key in counters:
             counters[key] += r[key]
     refined.refined[:] = True
-    if params.neighbour_clamp:
+    if params.neighbour_clamp:  # deviation: neighbour-clamp, docs/DEVIATIONS.md
         refined.R = neighbour_clamp(refined.p, refined.R)
     # The zones changed size: find their walls again (one ray per sector and record).
-    if params.wall_sectors:
+    if params.wall_sectors:  # deviation: wall-sectors, docs/DEVIATIONS.md
         refined.wall = wall_distances(caster, refined.p, refined.n, params.a * refined.R)
     else:
         refined.wall = open_walls(K)
