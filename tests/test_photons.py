@@ -8,14 +8,14 @@ from pdic.core.density import PhotonDensity
 from pdic.core.irradiance_cache import CacheParameters, cache_from_photons
 from pdic.core.photons import PhotonMap, trace_photons
 from pdic.core.rays import RayCaster
-from pdic.core.scene import AreaLight, Materials, PointLight, Scene, SpotLight, SunLight, World
+from pdic.core.scene import AreaLight, PointLight, SpotLight, SunLight, World
 
-from scenes import furnace, geometry, quad
+from scenes import furnace, lit, quad
 
 
 def _floor_scene(light=None, world=None):
     tris = quad([-1, -1, 0], [2, 0, 0], [0, 2, 0])
-    return Scene(geometry(tris), Materials.default(1), lights=(light,) if light else (), world=world or World())
+    return lit(tris, *((light,) if light else ()), world=world)
 
 
 def _emitted_power(scene, photons=20_000):

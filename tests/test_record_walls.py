@@ -13,9 +13,9 @@ from pdic.core.density import PhotonDensity
 from pdic.core.record_walls import wall_distances
 from pdic.core.photons import trace_photons
 from pdic.core.rays import RayCaster
-from pdic.core.scene import Materials, PointLight, Scene
+from pdic.core.scene import PointLight
 
-from scenes import geometry, quad
+from scenes import lit, quad
 
 
 def _floor_and_bar():
@@ -36,8 +36,7 @@ def test_wall_rays_starting_on_another_surface_look_past_it():
 
 def test_a_record_walled_in_at_zero_gets_no_photons_rather_than_amplified_ones():
     tris = _floor_and_bar()
-    scene = Scene(geometry(tris), Materials.default(1),
-                  lights=(PointLight("p", np.array([0.5, 0.0, 0.8]), np.full(3, 100.0)),))
+    scene = lit(tris, PointLight("p", np.array([0.5, 0.0, 0.8]), np.full(3, 100.0)))
     photons, _ = trace_photons(scene, RayCaster(tris), 20_000, 3, seed=1)
     density = PhotonDensity(photons)
     p_k, n_k, R_k, a = np.array([0.5, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]), 0.5, 0.5
@@ -80,8 +79,7 @@ def test_kernel_coverage_lifts_a_bars_density_estimate_toward_the_truth():
     # Photons from a light straight above a 4 cm bar land on it with irradiance E; a plain disc
     # kernel spreads them over the whole disc and reports a fraction of E.
     bar = quad([-0.02, -2, 0], [0.04, 0, 0], [0, 4, 0])
-    scene = Scene(geometry(bar), Materials.default(1), lights=(PointLight("p", np.array([0, 0, 1.0]),
-                                                                          np.full(3, 100.0)),))
+    scene = lit(bar, PointLight("p", np.array([0, 0, 1.0]), np.full(3, 100.0)))
     caster = RayCaster(bar)
     photons, _ = trace_photons(scene, caster, 20_000, 1, seed=2)
     density = PhotonDensity(photons)
@@ -106,8 +104,7 @@ def test_gather_hits_outside_every_record_take_the_nearest_visible_photons_light
     wall = quad([0.5, -1, 0], [0, 2, 0], [0, 0, 1])  # a wall standing on the floor at x = 0.5
     tris = np.concatenate([floor, wall])
     # The lamp is beyond the wall and lower than it: photons land only on the far side (x > 0.5).
-    scene = Scene(geometry(tris), Materials.default(1),
-                  lights=(PointLight("p", np.array([0.8, 0.0, 0.6]), np.full(3, 100.0)),))
+    scene = lit(tris, PointLight("p", np.array([0.8, 0.0, 0.6]), np.full(3, 100.0)))
     caster = RayCaster(tris)
     photons, _ = trace_photons(scene, caster, 5_000, 1, seed=4)
     lighting = PhotonLighting.zeros(len(photons))
