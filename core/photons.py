@@ -67,6 +67,11 @@ class PhotonMap:
             if isinstance(value, np.ndarray):
                 value.flags.writeable = False
 
+    def __setstate__(self, state):
+        """Unpickled (a BakeCache on disk): read-only again, as when traced."""
+        self.__dict__.update(state)
+        self.__post_init__()
+
     def __len__(self) -> int:
         return len(self.p)
 

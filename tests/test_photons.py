@@ -108,3 +108,15 @@ def test_white_furnace_cache_converges_to_analytic():
     assert np.mean(cache.E[:, 0]) == pytest.approx(expected, rel=0.05)
     assert np.all(lighting.w_sum >= 1 / params.a - 1e-9)  # Algorithm 1 leaves no photon uncovered
     assert np.mean(lighting.E_indirect()[:, 0]) == pytest.approx(expected, rel=0.05)
+
+
+def test_photon_map_is_read_only_even_after_a_round_trip_through_pickle():
+    import pickle
+
+    scene = _floor_scene(PointLight("p", np.array([0, 0, 1.0]), np.full(3, 10.0)))
+    pm, _ = trace_photons(scene, RayCaster(scene.geometry.positions), 500, 2, seed=0)
+    for photons in (pm, pickle.loads(pickle.dumps(pm))):
+        with pytest.raises(ValueError, match="read-only"):
+            photons.p[0] = 0.0
+        with pytest.raises(ValueError, match="read-only"):
+            photons.prev[:] = -1
