@@ -130,6 +130,8 @@ def _encode(value, arrays: dict):
         return {"dict": [[_encode(k, arrays), _encode(v, arrays)] for k, v in value.items()]}
     if isinstance(value, np.generic):
         return {"scalar": _encode(np.asarray(value), arrays)}
+    if isinstance(value, slice):
+        return {"slice": [_encode(v, arrays) for v in (value.start, value.stop, value.step)]}
     if value is None or isinstance(value, (bool, int, float, str)):
         return {"value": value}
     raise TypeError(f"cannot store a {type(value).__name__}")
@@ -158,6 +160,8 @@ def _decode(node, arrays: dict):
         return {_decode(k, arrays): _decode(v, arrays) for k, v in node["dict"]}
     if "scalar" in node:
         return _decode(node["scalar"], arrays)[()]
+    if "slice" in node:
+        return slice(*(_decode(v, arrays) for v in node["slice"]))
     return node["value"]
 
 

@@ -66,14 +66,14 @@ def _records():
 
 
 def test_bake_cache_round_trips_dataclasses_through_disk_without_pickle(tmp_path):
-    value = (_records(), {"E": np.arange(3.0)}, 7)
+    value = (_records(), {"E": np.arange(3.0)}, 7, slice(2, 9))
     key = BakeCache(tmp_path).key("cache", "scene")
     BakeCache(tmp_path).put("cache", key, value)
     (path,) = tmp_path.glob("cache-*.npz")
     with np.load(path, allow_pickle=False) as data:  # plain arrays: nothing runs on load
         assert all(data[name].dtype != object for name in data.files)
     back = BakeCache(tmp_path).get("cache", key)
-    assert isinstance(back[0], IrradianceCache) and back[2] == 7
+    assert isinstance(back[0], IrradianceCache) and back[2] == 7 and back[3] == slice(2, 9)
     for name in ("p", "E", "R", "photons_used", "hole", "wall"):
         assert np.array_equal(getattr(back[0], name), getattr(value[0], name))
     assert np.array_equal(back[1]["E"], value[1]["E"])

@@ -81,7 +81,9 @@ def test_stacked_faces_triangulated_differently_get_separate_uvs():
     polygon = np.concatenate([poly, poly + 36])
     r = unwrap(positions, triangles, 64, 2, triangle_polygon=polygon, max_resolution=1024)
     assert uv_overlaps(r.uv, None, r.resolution, r.resolution, 4) == 0
-    assert loop_uvs(r.uv, np.concatenate([loops, loops + 4 * 36]), 8 * 36)[1] == 0  # still one UV per corner
+    q = 4 * np.arange(36) + 4 * 36  # loops of the copy: a, b, c, d = q, q + 1, q + 2, q + 3
+    loops2 = np.concatenate([np.stack([q, q + 1, q + 3], -1), np.stack([q + 1, q + 2, q + 3], -1)])
+    assert loop_uvs(r.uv, np.concatenate([loops, loops2]), 8 * 36)[1] == 0  # still one UV per corner
 
 
 def test_duplicate_faces_are_unwrapped_without_overlap():
