@@ -158,3 +158,19 @@ def test_xatlas_crash_on_ico_sphere_is_survived_and_reported(blender):
     with pytest.raises(UnwrapCrashed, match="SIGSEGV"):
         unwrap(tris.positions, tris.triangles, 256, 2, triangle_polygon=tris.polygon, progress=tries.append)
     assert len(tries) == unwrap_module.CHART_VARIANTS  # every chart-option set was tried
+
+
+def test_cathedral_unwraps_without_overlap_and_its_pole_triangles_cover_nothing():
+    """bench/cathedral.py at low detail (17.6k triangles): the apse dome's pole has zero-area
+    triangles whose corners lie in different charts; they used to take one UV from each
+    chart and cross the map (901 texel centres inside two triangles at 512^2)."""
+    from bench.cathedral import cathedral
+
+    mesh = cathedral(0.2)
+    tri, polygon = mesh.triangles()
+    r = unwrap(mesh.positions, tri, 512, 2, triangle_polygon=polygon, max_resolution=4096)
+    assert uv_overlaps(r.uv, None, r.resolution, r.resolution) == 0
+    degenerate = r.chart < 0
+    assert degenerate.sum() > 0
+    e1, e2 = r.uv[degenerate, 1] - r.uv[degenerate, 0], r.uv[degenerate, 2] - r.uv[degenerate, 0]
+    assert np.all(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] == 0)
