@@ -109,3 +109,16 @@ def test_object_scaled_to_zero_fails_naming_the_object(blender, registered):
     blender.context.view_layer.update()
     with pytest.raises(BakeError, match="'Hidden'.*scaled to 0"):
         prepared_job(blender, [hidden])
+
+
+def test_cube_at_resolution_8_grows_its_map_and_says_so(blender, registered):
+    """``--resolution 8`` on a cube failed the whole bake ("could not pack the charts into 8x8")."""
+    blender.ops.mesh.primitive_cube_add()
+    cube = blender.context.object
+    cube.pdic.resolution = 8
+    job = prepared_job(blender, [cube])
+    res = job.resolutions[cube.name][0]
+    assert res > 8 and any("8x8" in w and f"{res}x{res}" in w for w in job.warnings)
+    assert job.extraction.scene.targets[0].width == res
+    assert lightmap_overlaps(cube, res) == 0
+    job.rollback()
