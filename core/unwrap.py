@@ -24,7 +24,7 @@ import os
 import subprocess
 import sys
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -214,7 +214,7 @@ def unwrap(positions: np.ndarray, triangles: np.ndarray, resolution: int, paddin
     if path is not None:
         warning = _store(path, result)
         if warning:
-            result = UnwrapResult(**{**result.__dict__, "warnings": (warning,)})
+            result = replace(result, warnings=(warning,))
     return result
 
 
