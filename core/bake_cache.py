@@ -32,14 +32,15 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import importlib
 import os
-import pickle
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-FORMAT_VERSION = 1
+from .cache_files import read_entry, write_entry
+
+FORMAT_VERSION = 2
 """Bump when the stored layout changes."""
 KINDS = ("raster", "direct", "photons", "cache", "indirect")
 
@@ -102,6 +103,68 @@ def target_key(scene, target, texel_samples: int) -> str:
                         g.positions[tri], g.normals[tri], int(texel_samples))
 
 
+# --------------------------------------------------------------------------- file format
+# A value is stored as a JSON tree whose arrays are members of a checksummed .npz
+# (core.cache_files): nothing in a cache file can run code when it is read, and a
+# damaged file is a miss. Dataclasses are rebuilt only from this package's modules.
+_PACKAGE = __name__.rsplit(".", 1)[0]
+
+
+def _encode(value, arrays: dict):
+    """JSON-able tree for ``value``; arrays go into ``arrays`` under generated names."""
+    if isinstance(value, np.ndarray):
+        if value.dtype.hasobject:
+            raise TypeError("object arrays are not stored")
+        name = f"a{len(arrays)}"
+        arrays[name] = value
+        return {"array": name}
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        cls = type(value)
+        if not cls.__module__.startswith(_PACKAGE + "."):
+            raise TypeError(f"dataclass {cls.__qualname__} is not from {_PACKAGE}")
+        return {"dataclass": [cls.__module__[len(_PACKAGE) + 1:], cls.__qualname__],
+                "fields": [[f.name, _encode(getattr(value, f.name), arrays)] for f in dataclasses.fields(value)]}
+    if isinstance(value, (list, tuple)):
+        return {"tuple" if isinstance(value, tuple) else "list": [_encode(v, arrays) for v in value]}
+    if isinstance(value, dict):
+        return {"dict": [[_encode(k, arrays), _encode(v, arrays)] for k, v in value.items()]}
+    if isinstance(value, np.generic):
+        return {"scalar": _encode(np.asarray(value), arrays)}
+    if isinstance(value, slice):
+        return {"slice": [_encode(v, arrays) for v in (value.start, value.stop, value.step)]}
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return {"value": value}
+    raise TypeError(f"cannot store a {type(value).__name__}")
+
+
+def _decode(node, arrays: dict):
+    if "array" in node:
+        return arrays[node["array"]]
+    if "dataclass" in node:
+        module, qualname = node["dataclass"]
+        cls = getattr(importlib.import_module(f"{_PACKAGE}.{module}"), qualname)
+        if not dataclasses.is_dataclass(cls):
+            raise TypeError(f"{qualname} is not a dataclass")
+        values = {name: _decode(v, arrays) for name, v in node["fields"]}
+        init = {f.name for f in dataclasses.fields(cls) if f.init}
+        obj = cls(**{k: v for k, v in values.items() if k in init})
+        for k, v in values.items():
+            if k not in init:
+                object.__setattr__(obj, k, v)
+        return obj
+    if "tuple" in node:
+        return tuple(_decode(v, arrays) for v in node["tuple"])
+    if "list" in node:
+        return [_decode(v, arrays) for v in node["list"]]
+    if "dict" in node:
+        return {_decode(k, arrays): _decode(v, arrays) for k, v in node["dict"]}
+    if "scalar" in node:
+        return _decode(node["scalar"], arrays)[()]
+    if "slice" in node:
+        return slice(*(_decode(v, arrays) for v in node["slice"]))
+    return node["value"]
+
+
 DEFAULT_MAX_BYTES = 2 * 1024 ** 3
 """Disk budget of a bake cache folder (2 GiB: a few 4M-photon maps)."""
 
@@ -111,14 +174,18 @@ class BakeCache:
 
     Parameters
     ----------
-    folder : directory for ``<kind>-<sha256>.pkl`` files (created on first store), or None
+    folder : directory for ``<kind>-<sha256>.npz`` files (created on first store), or None
         for memory only. Disk entries survive the process; memory entries live as long as
-        the object. A 4M-photon map takes ~400 MB on disk.
+        the object. A 4M-photon map takes ~400 MB on disk. Each file carries a checksum; a
+        damaged file is a miss (recomputed and rewritten), and a folder that cannot be
+        written only costs the reuse.
     memory : keep entries in memory too (default True).
 
     Attributes
     ----------
     hits, misses, stores : dict kind -> count, for statistics and tests.
+    warnings : list of str, messages for the user (e.g. the folder could not be written);
+        each distinct message once.
     """
 
     def __init__(self, folder: os.PathLike | str | None = None, memory: bool = True):
@@ -129,6 +196,11 @@ class BakeCache:
         self.hits = {k: 0 for k in KINDS}
         self.misses = {k: 0 for k in KINDS}
         self.stores = {k: 0 for k in KINDS}
+        self.warnings: list[str] = []
+
+    def _warn(self, message: str) -> None:
+        if message not in self.warnings:
+            self.warnings.append(message)
 
     def prune(self, max_bytes: int = DEFAULT_MAX_BYTES) -> int:
         """Delete the least recently written disk entries until the folder holds at most ``max_bytes``.
@@ -138,15 +210,22 @@ class BakeCache:
         """
         if self.folder is None or not self.folder.is_dir():
             return 0
-        files = sorted(self.folder.glob("*.pkl"), key=lambda f: f.stat().st_mtime, reverse=True)
-        total, removed = 0, 0
-        for f in files:
-            size = f.stat().st_size
-            if total + size > max_bytes:
-                f.unlink(missing_ok=True)
+        removed = 0
+        try:
+            for old in self.folder.glob("*.pkl"):  # format 1 (pickle): never read again
+                old.unlink(missing_ok=True)
                 removed += 1
-            else:
-                total += size
+            files = sorted(self.folder.glob("*.npz"), key=lambda f: f.stat().st_mtime, reverse=True)
+            total = 0
+            for f in files:
+                size = f.stat().st_size
+                if total + size > max_bytes:
+                    f.unlink(missing_ok=True)
+                    removed += 1
+                else:
+                    total += size
+        except OSError as e:
+            self._warn(f"bake cache folder {str(self.folder)!r} could not be pruned ({e.strerror or e})")
         return removed
 
     def key(self, kind: str, *parts) -> str:
@@ -156,21 +235,15 @@ class BakeCache:
         return content_hash(kind, FORMAT_VERSION, self.code, *parts)
 
     def _path(self, kind: str, key: str) -> Path:
-        return self.folder / f"{kind}-{key}.pkl"
+        return self.folder / f"{kind}-{key}.npz"
 
     def get(self, kind: str, key: str):
         """The stored value, or None (counted as a hit or a miss)."""
         value = self._entries.get((kind, key)) if self.memory else None
         if value is None and self.folder is not None:
-            path = self._path(kind, key)
-            if path.is_file():
-                try:
-                    with open(path, "rb") as f:
-                        value = pickle.load(f)
-                except (OSError, EOFError, pickle.UnpicklingError, AttributeError, ImportError):
-                    value = None  # a damaged or foreign file is a miss, rewritten on store
-                if value is not None and self.memory:
-                    self._entries[(kind, key)] = value
+            value = self._read(kind, key)
+            if value is not None and self.memory:
+                self._entries[(kind, key)] = value
         if value is None:
             self.misses[kind] += 1
         else:
@@ -183,16 +256,33 @@ class BakeCache:
         if self.memory:
             self._entries[(kind, key)] = value
         if self.folder is not None:
-            self.folder.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{kind}-", suffix=".pkl", dir=self.folder)
-            try:
-                with os.fdopen(fd, "wb") as f:
-                    pickle.dump(value, f, protocol=pickle.HIGHEST_PROTOCOL)
-                os.replace(tmp, self._path(kind, key))
-            except BaseException:
-                if os.path.exists(tmp):
-                    os.unlink(tmp)
-                raise
+            self._write(kind, key, value)
+
+    def _read(self, kind: str, key: str):
+        """The value in the entry's file, or None (missing, damaged, foreign: a miss)."""
+        entry = read_entry(self._path(kind, key))
+        if entry is None:
+            return None
+        header, arrays = entry
+        if header.get("kind") != kind or header.get("key") != key:
+            return None
+        try:
+            return _decode(header["value"], arrays)
+        except (KeyError, TypeError, ValueError, AttributeError, ImportError, IndexError):
+            return None
+
+    def _write(self, kind: str, key: str, value) -> None:
+        arrays: dict = {}
+        try:
+            tree = _encode(value, arrays)
+        except TypeError as e:  # a value this format cannot hold stays in memory only
+            self._warn(f"bake cache: {kind} entries are not stored on disk ({e})")
+            return
+        try:
+            write_entry(self._path(kind, key), {"kind": kind, "key": key, "value": tree}, arrays)
+        except OSError as e:
+            self._warn(f"bake cache folder {str(self.folder)!r} cannot be written ({e.strerror or e}); "
+                       f"the bake goes on without caching")
 
     def memoise(self, kind: str, key: str, compute):
         """The stored value of ``kind``/``key``, or ``compute()``'s, stored (the bake's one memo step)."""

@@ -1,48 +1,66 @@
 """Light-map UVs: choose a resolution, unwrap with xatlas, map UVs back to polygon corners.
 
 Every baked object needs a second UV map whose charts do not overlap and sit
-``padding`` texels apart, so each texel belongs to one piece of surface. This
-module wraps xatlas (``xatlas`` 0.0.11, the Python binding of jpcy/xatlas):
-
-1. **Pass 1, charting.** xatlas segments the triangles into charts,
-   parametrises and packs them (``ChartOptions`` defaults; ``PackOptions`` with
-   ``resolution``, ``padding``, ``bilinear=True``, ``blockAlign=True``). This is
-   the slow step (~7 s for a 65k-triangle grid) and is why results are cached.
-2. **Polygon fix.** Blender stores one UV per polygon corner (loop), but
-   xatlas only sees the polygon's triangles and may put them in different
-   charts (measured on a 40x40 quad grid: 0 of 1600 planar quads split, 62 of
-   1600 on a wavy surface, 622 of 1600 with noisy heights). The binding has no
-   way to pass polygons (xatlas's ``faceVertexCount`` is not exposed), so split
-   polygons are repaired afterwards: the triangles of a split polygon are
-   unfolded, edge by edge, into the chart of its largest part.
-3. **Pass 2, repacking.** xatlas does not keep to the requested resolution
-   (asked for 512 it returns e.g. 612x601). The charts are repacked with
-   ``use_input_mesh_uvs=True`` (tens of milliseconds: charts are kept, only
-   packed again) with ``texels_per_unit`` scaled until the atlas fits in
-   ``resolution x resolution`` and nearly fills it; UVs are then expressed in
-   [0, 1] of the *requested* resolution, so chart padding stays exactly
-   ``padding`` texels and texels stay square.
+``padding`` texels apart, so each texel belongs to one piece of surface. The
+xatlas passes (charting, polygon fix, packing, overlap repair) are in
+:mod:`core.xatlas_charts`; this module validates the input, serves and stores
+content-keyed cache files, and runs those passes in a child Python process
+(:mod:`core.unwrap_worker`): xatlas 0.0.11 crashes (SIGSEGV) on some meshes,
+e.g. an ico sphere with 7 subdivisions (jpcy/xatlas#146), and in Blender's
+own process that would take unsaved work down with it. A crashed child is
+retried with other chart options, then reported; the child is also what makes
+an unwrap cancellable (it is killed). Every result, computed or cached, is
+checked for overlapping UV triangles (:func:`core.uv_overlap.uv_overlaps`)
+before it is returned.
 
 UVs follow Blender: u to the right, v up, in [0, 1].
 """
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 import os
+import subprocess
+import sys
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import xatlas
 
+from .cache_files import read_entry, write_entry
+from .uv_overlap import uv_overlaps
+
 # Bump when anything here changes the UVs produced for the same input (cache key).
-ALGORITHM_VERSION = 1
-# Pass-2 repacking: at most this many packings to fit the requested resolution.
-MAX_PACK_ATTEMPTS = 10
-# Pass 2 is skipped when pass 1's atlas already fits and fills at least this much of it.
-GOOD_FILL = 0.95
+ALGORITHM_VERSION = 2
+# Chart-option variants tried in turn when the xatlas child process crashes
+# (see core.xatlas_charts.chart_options).
+CHART_VARIANTS = 2
+# How often a waiting unwrap asks ``cancelled()`` (seconds).
+POLL_SECONDS = 0.05
+
+
+class UnwrapError(RuntimeError):
+    """The unwrap could not produce a valid light-map layout; the message says why."""
+
+
+class UnwrapCrashed(UnwrapError):
+    """xatlas crashed (the child process died) with every chart-option variant."""
+
+
+class PackError(UnwrapError):
+    """The charts do not fit the largest allowed map. ``minimum``: a size seen to hold them, or 0."""
+
+    def __init__(self, message: str, minimum: int = 0):
+        super().__init__(message)
+        self.minimum = minimum
+
+
+class DegenerateMeshError(ValueError):
+    """No triangle has an area (e.g. an object scaled to 0): nothing can be unwrapped."""
 
 
 # --------------------------------------------------------------------------- resolution
@@ -83,18 +101,21 @@ class UnwrapResult:
     """Light-map UVs of one object.
 
     uv : (t, 3, 2) float32 per-triangle-corner UVs in [0, 1] (u right, v up),
-        triangles in input order. A degenerate (zero-area) triangle, which xatlas
-        leaves out of every chart, gets the UVs its vertices have in other
-        triangles (its own polygon's first), so it is a sliver or a point inside
-        a chart; a degenerate triangle none of whose vertices is charted collapses
-        to the point (0, 0).
+        triangles in input order; corners with the same (polygon, vertex) have the
+        same UV. A degenerate (zero-area) triangle, which xatlas leaves out of every
+        chart, gets UVs inside its own polygon (zero UV area) or, if its polygon has
+        no charted triangle, one point.
     chart_count : number of charts.
-    utilization : fraction of the [0, 1]^2 square covered by UV triangles (0..1,
-        typical 0.5-0.8).
+    utilization : fraction of the map covered by UV triangles (0..1, typical 0.3-0.8).
     from_cache : True if read from ``cache_dir`` instead of computed.
-    polygons_fixed : number of polygons xatlas split across charts that were
-        re-joined (0 when no polygon structure was given).
+    polygons_fixed : polygons xatlas split across charts that were re-joined (0 when no
+        polygon structure was given).
     chart : (t,) int32 chart of each triangle, -1 for degenerate triangles.
+    resolution : side of the map the UVs are laid out for, texels; larger than the
+        requested one when the charts did not fit it and growing was allowed.
+    polygons_detached : polygons taken out of folded charts as islands of their own.
+    overlaps : texel centres inside two or more UV triangles (always 0: checked).
+    warnings : messages for the user (e.g. the cache folder could not be written).
     """
 
     uv: np.ndarray
@@ -103,12 +124,16 @@ class UnwrapResult:
     from_cache: bool = False
     polygons_fixed: int = 0
     chart: np.ndarray | None = None
+    resolution: int = 0
+    polygons_detached: int = 0
+    overlaps: int = 0
+    warnings: tuple = ()
 
 
 def cache_key(positions: np.ndarray, triangles: np.ndarray, resolution: int, padding: int,
-              triangle_polygon: np.ndarray | None = None) -> str:
+              triangle_polygon: np.ndarray | None = None, max_resolution: int = 0) -> str:
     """sha256 (hex) of everything the UVs depend on: geometry, polygons, resolution,
-    padding, the xatlas version and :data:`ALGORITHM_VERSION`."""
+    padding, the growth limit, the xatlas version and :data:`ALGORITHM_VERSION`."""
     h = hashlib.sha256()
     h.update(b"pdic-unwrap\0")
     h.update(np.ascontiguousarray(positions, dtype=np.float64).tobytes())
@@ -117,13 +142,16 @@ def cache_key(positions: np.ndarray, triangles: np.ndarray, resolution: int, pad
     h.update(b"\0")
     if triangle_polygon is not None:
         h.update(np.ascontiguousarray(triangle_polygon, dtype=np.int64).tobytes())
-    h.update(f"\0{int(resolution)}\0{int(padding)}\0{xatlas.__version__}\0{ALGORITHM_VERSION}".encode())
+    h.update(f"\0{int(resolution)}\0{int(padding)}\0{int(max_resolution)}\0{xatlas.__version__}"
+             f"\0{ALGORITHM_VERSION}".encode())
     return h.hexdigest()
 
 
 # --------------------------------------------------------------------------- unwrap
 def unwrap(positions: np.ndarray, triangles: np.ndarray, resolution: int, padding: int,
-           cache_dir: Path | None = None, triangle_polygon: np.ndarray | None = None) -> UnwrapResult:
+           cache_dir: Path | None = None, triangle_polygon: np.ndarray | None = None, *,
+           max_resolution: int = 0, cancelled: Callable[[], bool] | None = None,
+           progress: Callable[[str], None] | None = None, in_process: bool = False) -> UnwrapResult:
     """Unwrap a mesh into non-overlapping light-map charts.
 
     Parameters
@@ -133,11 +161,18 @@ def unwrap(positions: np.ndarray, triangles: np.ndarray, resolution: int, paddin
     triangles : (t, 3) int vertex indices; output keeps this order.
     resolution : light-map width and height in texels (typical 64-2048).
     padding : texels of gutter between charts (typical 2).
-    cache_dir : folder for content-keyed ``unwrap-<sha256>.npz`` files, or None.
+    cache_dir : folder for content-keyed ``unwrap-<sha256>.npz`` files, or None. A folder
+        that cannot be written only costs the reuse (see ``UnwrapResult.warnings``).
     triangle_polygon : (t,) int, optional polygon (Blender face) of each triangle,
         e.g. ``MeshLoopTriangle.polygon_index``. When given, polygons that xatlas
         split across charts are re-joined so each polygon corner has one UV
         (see :func:`loop_uvs`).
+    max_resolution : when the charts do not fit ``resolution``, grow the map (by 25 %
+        steps) up to this size; ``UnwrapResult.resolution`` says what was used. 0: never grow.
+    cancelled : called while xatlas runs; returning True kills it and raises
+        ``core.executor.Cancelled``.
+    progress : called with a short message when a step starts (e.g. a retry).
+    in_process : run xatlas in this process (no crash protection; for tools and tests).
 
     Returns
     -------
@@ -146,8 +181,45 @@ def unwrap(positions: np.ndarray, triangles: np.ndarray, resolution: int, paddin
     Raises
     ------
     ValueError : on non-finite positions, indices out of range, bad shapes or a
-        resolution/padding that leaves no room.
+        resolution/padding that leaves no room; :class:`DegenerateMeshError` when no
+        triangle has an area.
+    PackError : the charts do not fit ``max(resolution, max_resolution)``.
+    UnwrapCrashed : xatlas crashed with every chart-option variant.
+    UnwrapError : the layout still overlaps after repair.
     """
+    p, tri, poly = _validated(positions, triangles, resolution, padding, triangle_polygon)
+
+    # -- content-keyed cache (STYLE principle 8); a damaged or overlapping entry is recomputed
+    path = None
+    if cache_dir is not None:
+        key = cache_key(p, tri, resolution, padding, poly, max_resolution)
+        path = Path(cache_dir) / f"unwrap-{key}.npz"
+        cached = _load(path, len(tri))
+        if cached is not None and uv_overlaps(cached.uv, None, cached.resolution, cached.resolution) == 0:
+            return cached
+
+    if len(tri) == 0:
+        result = UnwrapResult(np.zeros((0, 3, 2), np.float32), 0, 0.0, chart=np.zeros(0, np.int32),
+                              resolution=int(resolution))
+    else:
+        run = _layout_here if in_process else _layout_in_child
+        out = run(p, tri, int(resolution), int(padding), poly, int(max_resolution), cancelled, progress)
+        result = UnwrapResult(out["uv"], out["chart_count"], out["utilization"], False, out["polygons_fixed"],
+                              out["chart"], out["resolution"], out["polygons_detached"])
+    # -- the gate: a light-map layout that overlaps is never returned
+    overlaps = uv_overlaps(result.uv, None, result.resolution, result.resolution)
+    if overlaps:
+        raise UnwrapError(f"{overlaps} texel centres of the {result.resolution}x{result.resolution} light map lie "
+                          f"inside two or more UV triangles after repair; please report this mesh")
+    if path is not None:
+        warning = _store(path, result)
+        if warning:
+            result = replace(result, warnings=(warning,))
+    return result
+
+
+def _validated(positions, triangles, resolution, padding, triangle_polygon):
+    """(positions (V, 3) float64, triangles (t, 3) int64, polygon (t,) int64 or None), checked."""
     p = np.ascontiguousarray(positions, dtype=np.float64)
     tri = np.ascontiguousarray(triangles)
     if p.ndim != 2 or p.shape[1] != 3:
@@ -167,336 +239,113 @@ def unwrap(positions: np.ndarray, triangles: np.ndarray, resolution: int, paddin
         poly = np.ascontiguousarray(triangle_polygon, dtype=np.int64)
         if poly.shape != (len(tri),):
             raise ValueError(f"unwrap: triangle_polygon must be ({len(tri)},), got {poly.shape}")
-
-    # -- content-keyed cache (STYLE principle 8)
-    path = None
-    if cache_dir is not None:
-        path = Path(cache_dir) / f"unwrap-{cache_key(p, tri, resolution, padding, poly)}.npz"
-        cached = _load(path, len(tri))
-        if cached is not None:
-            return cached
-
-    if len(tri) == 0:
-        result = UnwrapResult(np.zeros((0, 3, 2), np.float32), 0, 0.0, chart=np.zeros(0, np.int32))
-    else:
-        result = _unwrap(p, tri, int(resolution), int(padding), poly)
-
-    if path is not None:
-        _store(path, result)
-    return result
+    if len(tri):
+        c = p[tri].astype(np.float32).astype(np.float64)  # as xatlas sees them
+        area2 = np.linalg.norm(np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), axis=1)
+        if not (area2 > 0).any():
+            raise DegenerateMeshError(f"no triangle has an area (all {len(tri)} are degenerate; "
+                                      f"is the object scaled to 0?)")
+    return p, tri, poly
 
 
-def _pack_options(resolution: int, padding: int, texels_per_unit: float = 0.0) -> "xatlas.PackOptions":
-    po = xatlas.PackOptions()
-    po.resolution = resolution
-    po.padding = padding
-    po.bilinear = True
-    po.blockAlign = True
-    po.texels_per_unit = texels_per_unit
-    return po
+# --------------------------------------------------------------------------- running xatlas
+def _layout_here(p, tri, resolution, padding, poly, max_resolution, cancelled, progress, variant=0):
+    from . import xatlas_charts
+
+    try:
+        return xatlas_charts.layout(p, tri, resolution, padding, poly, max_resolution, variant)
+    except xatlas_charts.PackError as e:
+        raise PackError(str(e), e.minimum) from None
 
 
-def _unwrap(p, tri, resolution, padding, poly) -> UnwrapResult:
-    # -- pass 1: charts (xatlas estimates texels per unit for the resolution)
-    atlas = xatlas.Atlas()
-    atlas.add_mesh(p.astype(np.float32), tri.astype(np.uint32))
-    atlas.generate(xatlas.ChartOptions(), _pack_options(resolution, padding))
-    xref, index, uv = atlas[0]
-    index = index.astype(np.int64)
-    xref = xref.astype(np.int64)
-    uv_texel = uv.astype(np.float64) * [atlas.width, atlas.height]
-    atlas_of_vertex, chart_of_vertex = atlas.get_mesh_vertex_assignment(0)
-    charted = atlas_of_vertex.astype(np.int64) != 0xFFFFFFFF
-    chart_of_vertex = np.where(charted, chart_of_vertex.astype(np.int64), -1)
-    valid = charted[index].all(axis=1)  # xatlas skips degenerate triangles
-    width, height, tpu, chart_count = atlas.width, atlas.height, atlas.texels_per_unit, atlas.chart_count
-
-    # -- polygon fix: re-join polygons split across charts
-    fixed = 0
-    if poly is not None:
-        index, xref, uv_texel, chart_of_vertex, fixed = _join_split_polygons(
-            p, tri, poly, valid, index, xref, uv_texel, chart_of_vertex, width, height)
-
-    # -- pass 2: repack the same charts to fit (and fill) the requested resolution
-    fill = max(width, height) / resolution
-    chart = np.where(valid, chart_of_vertex[index[:, 0]], -1)
-    if fixed or fill > 1.0 or fill < GOOD_FILL:
-        index, uv_texel, width, height, chart_count, chart = _repack(
-            p, xref, index, uv_texel, valid, resolution, padding, tpu / fill)
-
-    uv_corner = (uv_texel[index] / resolution).astype(np.float32)  # same texel size as xatlas's atlas
-    uv_corner = _place_degenerate(uv_corner, tri, valid, poly)
-    uv_corner = np.clip(uv_corner, 0.0, 1.0)
-    e1 = uv_corner[:, 1] - uv_corner[:, 0]
-    e2 = uv_corner[:, 2] - uv_corner[:, 0]
-    utilization = float(0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])[valid].sum())
-    return UnwrapResult(uv_corner, int(chart_count), min(utilization, 1.0), False, fixed, chart.astype(np.int32))
+def python_interpreter() -> str:
+    """A Python interpreter for the child process: ``sys.executable`` under the bpy wheel,
+    the Python Blender bundles (``sys.prefix``) when ``sys.executable`` is Blender itself."""
+    exe = Path(sys.executable)
+    if exe.name.lower().startswith("python") and exe.is_file():
+        return str(exe)
+    version = f"{sys.version_info.major}.{sys.version_info.minor}"
+    prefix = Path(sys.prefix)
+    for candidate in (prefix / "bin" / f"python{version}", prefix / "bin" / "python3", prefix / "bin" / "python",
+                      prefix / "python.exe", prefix / "bin" / "python.exe"):
+        if candidate.is_file():
+            return str(candidate)
+    raise UnwrapError(f"no Python interpreter found to run xatlas in (looked next to {sys.executable} and in "
+                      f"{prefix})")
 
 
-def _repack(p, xref, index, uv_texel, valid, resolution, padding, tpu):
-    """Pack the given charts again (xatlas ``use_input_mesh_uvs``) so the atlas fits
-    ``resolution`` squared; returns (index, uv_texel, width, height, chart_count, chart)."""
-    positions = p[xref].astype(np.float32)
-    uvs = uv_texel.astype(np.float32)
-    faces = index[valid].astype(np.uint32)
-    chart_options = xatlas.ChartOptions()
-    chart_options.use_input_mesh_uvs = True
-    # Search texels-per-unit: the largest tried that fits, stopping once the atlas
-    # fills >= GOOD_FILL of the side. Packing size is not linear in the scale
-    # (padding and 4x4 block alignment are fixed), hence a search, not one rescale.
-    best, best_tpu, fits, too_big = None, 0.0, None, None
-    for _ in range(MAX_PACK_ATTEMPTS):
-        atlas = xatlas.Atlas()
-        atlas.add_mesh(positions, faces, None, uvs)
-        atlas.generate(chart_options, _pack_options(0, padding, tpu))  # 0: one atlas, any size
-        size = max(atlas.width, atlas.height)
-        if size <= resolution:
-            if tpu > best_tpu:
-                best, best_tpu = atlas, tpu
-            fits = tpu
-            if size >= GOOD_FILL * resolution or (too_big is not None and too_big / fits < 1.01):
-                break
-        else:
-            too_big = tpu
-        if fits is None:
-            tpu *= (resolution / size) ** 1.5 * 0.98
-        elif too_big is None:
-            tpu *= resolution / size
-        else:
-            tpu = math.sqrt(fits * too_big)
-    if best is None:
-        raise RuntimeError(f"unwrap: xatlas could not pack the charts into {resolution}x{resolution} "
-                           f"with padding {padding} after {MAX_PACK_ATTEMPTS} attempts")
-    xref2, index2, uv2 = best[0]
-    # xatlas keeps face order: pass-2 face k is the k-th valid triangle.
-    new_index = np.zeros_like(index)
-    new_index[valid] = index2.astype(np.int64)
-    uv2_texel = uv2.astype(np.float64) * [best.width, best.height]
-    chart = np.full(len(index), -1, np.int64)
-    chart[valid] = best.get_mesh_vertex_assignment(0)[1].astype(np.int64)[index2[:, 0]]
-    return new_index, uv2_texel, best.width, best.height, best.chart_count, chart
+def _layout_in_child(p, tri, resolution, padding, poly, max_resolution, cancelled, progress):
+    """:func:`core.xatlas_charts.layout` in a child process, retried with other chart options
+    when it crashes. Arrays go through ``.npz`` files in a temporary folder."""
+    crashes = []
+    for variant in range(CHART_VARIANTS):
+        if progress is not None:
+            progress("unwrapping (xatlas)" if variant == 0 else f"unwrapping again with chart options {variant}")
+        with tempfile.TemporaryDirectory(prefix="pdic-unwrap-") as folder:
+            folder = Path(folder)
+            arrays = dict(positions=p, triangles=tri)
+            if poly is not None:
+                arrays["polygon"] = poly
+            np.savez(folder / "input.npz", **arrays)
+            request = dict(resolution=resolution, padding=padding, max_resolution=max_resolution, variant=variant,
+                           sys_path=[s for s in sys.path if s])
+            (folder / "request.json").write_text(json.dumps(request))
+            code = _run_child(folder, cancelled)
+            status = folder / "status.json"
+            if not status.is_file():
+                crashes.append(_describe_exit(code, folder / "stderr.txt"))
+                continue
+            answer = json.loads(status.read_text())
+            if answer.get("error") == "PackError":
+                raise PackError(answer["message"], int(answer.get("minimum", 0)))
+            if answer.get("error") == "ValueError":
+                raise ValueError(answer["message"])
+            if answer.get("error"):
+                raise UnwrapError(f"xatlas failed: {answer['error']}: {answer['message']}")
+            with np.load(folder / "output.npz", allow_pickle=False) as data:
+                out = {k: data[k] for k in data.files}
+            return dict(uv=out["uv"].astype(np.float32), chart=out["chart"].astype(np.int32),
+                        **{k: answer[k] for k in ("chart_count", "utilization", "polygons_fixed",
+                                                  "polygons_detached", "resolution")})
+    raise UnwrapCrashed(f"xatlas crashed on this mesh with all {CHART_VARIANTS} chart-option sets "
+                        f"({'; '.join(crashes)}); a known xatlas bug (jpcy/xatlas#146) on some regular meshes, "
+                        f"e.g. an ico sphere with 7 subdivisions: change the mesh (e.g. fewer subdivisions) "
+                        f"or give it a light-map UV map of your own")
 
 
-def _join_split_polygons(p, tri, poly, valid, index, xref, uv_texel, chart_of_vertex, width, height):
-    """Re-join polygons whose triangles xatlas put in different charts.
+def _run_child(folder: Path, cancelled) -> int:
+    """Run the worker on ``folder``; returns its exit code. Kills it and raises
+    ``core.executor.Cancelled`` when ``cancelled()`` turns True."""
+    from .executor import Cancelled
 
-    A polygon is split when one of its vertices has two different xatlas output
-    vertices (two UVs) among its triangles. For each such polygon the chart with
-    the largest share of the polygon's area keeps its triangles; the others are
-    unfolded into that chart across the edges they share with placed triangles,
-    keeping their 3-D shape at the chart's local scale and the chart's winding.
-    An unfolded corner whose vertex already has a UV in that chart reuses it.
-    If an unfolded triangle then overlaps another triangle (checked by
-    rasterising at 8x8 points per texel), the whole polygon is detached as an
-    island of its own instead. Pass 2 then repacks, so grown charts and new
-    islands cannot overlap other charts. Known limit: overlaps thinner than
-    1/8 texel can slip through (seen on 2 of 3200 triangles of a quad grid with
-    random heights; none on smooth surfaces).
-
-    Returns (index, xref, uv_texel, chart_of_vertex, polygons_fixed).
-    """
-    from .raster import overlapping
-
-    corners = np.flatnonzero(np.repeat(valid, 3))
-    key_poly = poly[corners // 3]
-    key_vert = tri.reshape(-1)[corners]
-    out_vert = index.reshape(-1)[corners]
-    order = np.lexsort((out_vert, key_vert, key_poly))
-    kp, kv, ko = key_poly[order], key_vert[order], out_vert[order]
-    differ = (kp[1:] == kp[:-1]) & (kv[1:] == kv[:-1]) & (ko[1:] != ko[:-1])
-    split_polys = np.unique(kp[1:][differ])
-    if len(split_polys) == 0:
-        return index, xref, uv_texel, chart_of_vertex, 0
-
-    layout = _Layout(p, tri, index, xref, uv_texel, chart_of_vertex)
-    area = 0.5 * np.linalg.norm(np.cross(p[tri[:, 1]] - p[tri[:, 0]], p[tri[:, 2]] - p[tri[:, 0]]), axis=1)
-    members = np.flatnonzero(np.isin(poly, split_polys) & valid)
-    members = members[np.argsort(poly[members], kind="stable")]
-    groups = np.split(members, np.flatnonzero(np.diff(poly[members])) + 1)
-
-    # -- unfold each split polygon into its majority chart
-    plans = []
-    for group in groups:
-        group = [int(k) for k in group]
-        charts = [int(chart_of_vertex[index[k, 0]]) for k in group]
-        share: dict = {}
-        for k, c in zip(group, charts):
-            share[c] = share.get(c, 0.0) + area[k]
-        target = max(share, key=share.get)
-        anchor = max((k for k, c in zip(group, charts) if c == target), key=lambda k: area[k])
-        plans.append((group, anchor, target))
-        layout.unfold(group, anchor, target, reuse=True)
-
-    # -- detach polygons whose unfolded triangles overlap something
-    moved = np.zeros(len(tri), bool)
-    moved[members] = True
-    uv_unit = (layout.uv()[layout.index] / [width, height]).astype(np.float32)
-    candidates = _near(uv_unit, valid, moved, width, height)
-    bad = np.zeros(len(tri), bool)
-    bad[candidates] = overlapping(uv_unit[candidates], width, height, 8)
-    bad_polys = set(poly[bad & moved].tolist())
-    for group, anchor, target in plans:
-        if int(poly[group[0]]) in bad_polys:
-            layout.unfold(group, anchor, -1, reuse=False)
-    return layout.index, layout.xref(), layout.uv(), layout.chart(), len(groups)
+    worker = Path(__file__).resolve().parent / "unwrap_worker.py"
+    env = dict(os.environ, PYTHONNOUSERSITE="1", PYTHONFAULTHANDLER="1")
+    with open(folder / "stderr.txt", "wb") as err:
+        child = subprocess.Popen([python_interpreter(), "-I", str(worker), str(folder)], stdin=subprocess.DEVNULL,
+                                 stdout=subprocess.DEVNULL, stderr=err, env=env)
+        try:
+            while True:
+                try:
+                    return child.wait(timeout=POLL_SECONDS)
+                except subprocess.TimeoutExpired:
+                    if cancelled is not None and cancelled():
+                        raise Cancelled("unwrap cancelled") from None
+        finally:
+            if child.poll() is None:
+                child.kill()
+                child.wait()
 
 
-def _near(uv_unit, valid, moved, width, height):
-    """Valid triangles whose texel bounding box meets that of a moved triangle."""
-    lo = np.floor(uv_unit.min(1) * [width, height]).astype(np.int64) - 1
-    hi = np.floor(uv_unit.max(1) * [width, height]).astype(np.int64) + 1
-    lo = np.clip(lo, 0, [width - 1, height - 1])
-    hi = np.clip(hi, 0, [width - 1, height - 1])
-    marked = np.zeros((height + 1, width + 1), np.int64)  # 2-D difference array of moved boxes
-    m = np.flatnonzero(moved)
-    np.add.at(marked, (lo[m, 1], lo[m, 0]), 1)
-    np.add.at(marked, (lo[m, 1], hi[m, 0] + 1), -1)
-    np.add.at(marked, (hi[m, 1] + 1, lo[m, 0]), -1)
-    np.add.at(marked, (hi[m, 1] + 1, hi[m, 0] + 1), 1)
-    covered = np.cumsum(np.cumsum(marked, 0), 1)[:height, :width] > 0
-    table = np.zeros((height + 1, width + 1), np.int64)  # summed-area table of covered texels
-    table[1:, 1:] = np.cumsum(np.cumsum(covered, 0), 1)
-    hits = (table[hi[:, 1] + 1, hi[:, 0] + 1] - table[lo[:, 1], hi[:, 0] + 1]
-            - table[hi[:, 1] + 1, lo[:, 0]] + table[lo[:, 1], lo[:, 0]])
-    return np.flatnonzero(valid & (hits > 0))
+def _describe_exit(code: int, stderr: Path) -> str:
+    if code < 0:
+        import signal
 
-
-class _Layout:
-    """Pass-1 UV layout being edited: corner -> output vertex, output vertex -> (input vertex, uv, chart)."""
-
-    def __init__(self, p, tri, index, xref, uv_texel, chart_of_vertex):
-        self.p, self.tri = p, tri
-        self.index = index.copy()
-        self._xref = [int(v) for v in xref]
-        self._uv = [np.asarray(u, np.float64) for u in uv_texel]
-        self._chart = [int(c) for c in chart_of_vertex]
-        self._original = index.copy()
-        self.by_vertex_chart: dict = {}
-        for o, (v, c) in enumerate(zip(self._xref, self._chart)):
-            if c >= 0:
-                self.by_vertex_chart.setdefault((v, c), []).append(o)
-        self._next_chart = max(self._chart, default=-1) + 1
-        uv = np.asarray(uv_texel, np.float64).reshape(-1, 2)
-        self.island_offset = np.array([2.0 * (uv[:, 0].max(initial=0.0) + 1.0), 0.0])
-
-    def xref(self):
-        return np.asarray(self._xref, np.int64)
-
-    def uv(self):
-        return np.asarray(self._uv, np.float64).reshape(-1, 2)
-
-    def chart(self):
-        return np.asarray(self._chart, np.int64)
-
-    def _new_vertex(self, v, uv, chart):
-        self._xref.append(v)
-        self._uv.append(np.asarray(uv, np.float64))
-        self._chart.append(chart)
-        o = len(self._xref) - 1
-        self.by_vertex_chart.setdefault((v, chart), []).append(o)
-        return o
-
-    def unfold(self, group, anchor, target, reuse):
-        """Lay the triangles of one polygon out around ``anchor`` (its pass-1 UVs kept).
-
-        reuse=True: into chart ``target``, sharing the chart's vertices.
-        reuse=False: as a new island (fresh vertices, a new chart id).
-        """
-        a_uv = [self._uv[int(o)] for o in self._original[anchor]]
-        winding = np.sign(_cross2(a_uv[1] - a_uv[0], a_uv[2] - a_uv[0]))
-        if reuse:
-            known = {int(v): int(o) for v, o in zip(self.tri[anchor], self._original[anchor])}
-        else:
-            target = self._next_chart
-            self._next_chart += 1
-            # Away from every chart: xatlas joins input-UV charts at vertices with equal
-            # position and UV, so the island must not reuse the anchor's UVs verbatim.
-            a_uv = [u + self.island_offset for u in a_uv]
-            known = {int(v): self._new_vertex(int(v), u, target) for v, u in zip(self.tri[anchor], a_uv)}
-        self.index[anchor] = [known[int(v)] for v in self.tri[anchor]]
-        pending = [k for k in group if k != anchor]
-        progress = True
-        while pending and progress:
-            progress = False
-            for k in list(pending):
-                verts = [int(v) for v in self.tri[k]]
-                have = [v in known for v in verts]
-                if sum(have) < 2:
-                    continue
-                if not all(have):
-                    j = have.index(False)  # the corner to unfold across the opposite edge
-                    o = int(self._original[k, j])
-                    if reuse and self._chart[o] == target:  # already in the chart: keep its UV
-                        known[verts[j]] = o
-                        self.index[k] = [known[v] for v in verts]
-                        pending.remove(k)
-                        progress = True
-                        continue
-                    q = self._unfold_corner(verts, j, known, winding)
-                    if q is None:
-                        continue
-                    known[verts[j]] = self._place(verts[j], q, target, reuse)
-                self.index[k] = [known[v] for v in verts]
-                pending.remove(k)
-                progress = True
-
-    def _unfold_corner(self, verts, j, known, winding):
-        i0, i1 = (j + 1) % 3, (j + 2) % 3
-        u0, u1 = self._uv[known[verts[i0]]], self._uv[known[verts[i1]]]
-        p0, p1, pj = self.p[verts[i0]], self.p[verts[i1]], self.p[verts[j]]
-        edge = p1 - p0
-        length = float(np.linalg.norm(edge))
-        e_uv = u1 - u0
-        l_uv = float(np.hypot(*e_uv))
-        if length <= 0 or l_uv <= 0:
-            return None  # collapsed edge: cannot unfold across it
-        x = float(np.dot(pj - p0, edge)) / length  # 3-D triangle in the edge's frame
-        y = float(np.linalg.norm(np.cross(pj - p0, edge))) / length
-        t_hat = e_uv / l_uv
-        n_hat = np.array([-t_hat[1], t_hat[0]])
-        scale = l_uv / length  # the chart's texels per unit along this edge
-        for sign in (1.0, -1.0):
-            q = u0 + scale * (x * t_hat + sign * y * n_hat)
-            c = {i0: u0, i1: u1, j: q}
-            if np.sign(_cross2(c[1] - c[0], c[2] - c[0])) == winding:
-                return q
-        return u0 + scale * x * t_hat
-
-    def _place(self, v, q, target, reuse):
-        if reuse:  # the chart's own UV of that vertex, if it is where the unfolding puts it
-            for o in self.by_vertex_chart.get((v, target), []):
-                if np.hypot(*(self._uv[o] - q)) < 0.25:
-                    return o
-        return self._new_vertex(v, q, target)
-
-
-def _cross2(a, b):
-    return a[0] * b[1] - a[1] * b[0]
-
-
-def _place_degenerate(uv_corner, tri, valid, poly):
-    """Give corners of triangles xatlas skipped the UV their vertex has elsewhere
-    (in the same polygon first), else their triangle's first placed corner, else (0, 0)."""
-    if valid.all():
-        return uv_corner
-    uv_corner = uv_corner.copy()
-    invalid = np.flatnonzero(~valid)
-    good = np.flatnonzero(valid)
-    vertex_uv = {}
-    for k in good[::-1]:  # first triangle wins
-        for v, u in zip(tri[k], uv_corner[k]):
-            vertex_uv[int(v)] = u
-    poly_vertex_uv = {}
-    if poly is not None:
-        for k in good[np.isin(poly[good], poly[invalid])][::-1]:
-            for v, u in zip(tri[k], uv_corner[k]):
-                poly_vertex_uv[(int(poly[k]), int(v))] = u
-    for k in invalid:
-        found = [poly_vertex_uv.get((int(poly[k]), int(v))) if poly is not None else None for v in tri[k]]
-        found = [f if f is not None else vertex_uv.get(int(v)) for f, v in zip(found, tri[k])]
-        fallback = next((f for f in found if f is not None), np.zeros(2, np.float32))
-        uv_corner[k] = [f if f is not None else fallback for f in found]
-    return uv_corner
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    tail = stderr.read_text(errors="replace").strip().splitlines()[-1:] if stderr.is_file() else []
+    return f"exit code {code}" + (f": {tail[0]}" if tail else "")
 
 
 # --------------------------------------------------------------------------- polygon corners
@@ -533,29 +382,37 @@ def loop_uvs(uv_corner: np.ndarray, triangle_loops: np.ndarray, loop_count: int,
 
 
 # --------------------------------------------------------------------------- cache files
+_ARRAYS = ("uv", "chart")
+_FIELDS = ("chart_count", "utilization", "polygons_fixed", "resolution", "polygons_detached")
+
+
 def _load(path: Path, triangle_count: int) -> UnwrapResult | None:
+    """The cached result, or None if missing, damaged (checksum) or not for this mesh."""
+    entry = read_entry(path)
+    if entry is None:
+        return None
+    header, arrays = entry
     try:
-        with np.load(path) as data:
-            uv = data["uv"].astype(np.float32)
-            chart = data["chart"].astype(np.int32)
-            result = UnwrapResult(uv, int(data["chart_count"]), float(data["utilization"]), True,
-                                  int(data["polygons_fixed"]), chart)
-    except (OSError, KeyError, ValueError):
-        return None  # missing or unreadable: recompute
+        uv = arrays["uv"].astype(np.float32)
+        chart = arrays["chart"].astype(np.int32)
+        fields = {k: header[k] for k in _FIELDS}
+    except KeyError:
+        return None
     if uv.shape != (triangle_count, 3, 2) or chart.shape != (triangle_count,) or not np.isfinite(uv).all():
         return None
-    return result
+    if uv.size and (uv.min() < 0 or uv.max() > 1) or not int(fields["resolution"]) > 0:
+        return None
+    return UnwrapResult(uv, int(fields["chart_count"]), float(fields["utilization"]), True,
+                        int(fields["polygons_fixed"]), chart, int(fields["resolution"]),
+                        int(fields["polygons_detached"]))
 
 
-def _store(path: Path, result: UnwrapResult) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".unwrap-", suffix=".npz", dir=path.parent)
+def _store(path: Path, result: UnwrapResult) -> str | None:
+    """Write the cache file; a warning (str) instead of an error when the folder is unusable:
+    the cache only saves time."""
     try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, uv=result.uv, chart_count=result.chart_count, utilization=result.utilization,
-                     polygons_fixed=result.polygons_fixed, chart=result.chart)
-        os.replace(tmp, path)  # atomic: a concurrent reader sees the old file or the whole new one
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+        write_entry(path, {k: getattr(result, k) for k in _FIELDS}, {k: getattr(result, k) for k in _ARRAYS})
+    except OSError as e:
+        return (f"unwrap cache folder {str(path.parent)!r} cannot be written ({e.strerror or e}); "
+                f"going on without caching the unwrap")
+    return None

@@ -268,16 +268,23 @@ class BakeJob:
             scale = np.asarray(tuple(users[0].matrix_world.to_scale()), np.float64)
             try:
                 result = unwrap.unwrap(tris.positions * scale, tris.triangles, res, s.padding,
-                                       cache_dir=self.cache_dir, triangle_polygon=tris.polygon)
+                                       cache_dir=self.cache_dir, triangle_polygon=tris.polygon,
+                                       max_resolution=max(s.max_resolution, res))
                 uv_loop, conflicts = unwrap.loop_uvs(result.uv, tris.loops, tris.loop_count)
             except (ValueError, RuntimeError) as e:  # bad geometry, or xatlas failing to pack
                 raise BakeError(f"cannot unwrap mesh {mesh.name!r} (object {users[0].name!r}): {e}") from e
+            self.warnings += list(result.warnings)
+            if result.resolution != res:  # the charts did not fit: the map grew until they did
+                self.warnings.append(f"mesh {mesh.name!r}: its charts do not fit {res}x{res}; light map "
+                                     f"{result.resolution}x{result.resolution} instead")
+                for o in users:
+                    self.resolutions[o.name] = (result.resolution, result.resolution)
             if conflicts:
                 self.warnings.append(f"mesh {mesh.name!r}: {conflicts} polygon corners got split UVs")
             uvmaps.write_lightmap_uv(mesh, uv_loop, self.txn)
             for o in users:
                 self.unwraps[o.name] = {"charts": result.chart_count, "utilization": round(result.utilization, 4),
-                                        "unwrap_cached": result.from_cache}
+                                        "unwrap_cached": result.from_cache, "resolution_requested": res}
         self.timings["unwrap"] = time.perf_counter() - start
 
         # -- extract the core scene from the evaluated depsgraph, seeing the user's materials
@@ -312,6 +319,7 @@ class BakeJob:
         store = bake_cache.BakeCache(self.bake_cache_dir, memory=False)
         self.result = pipeline.bake(self.extraction.scene, self.settings, progress, cache=store)
         store.prune()
+        self.warnings += store.warnings  # e.g. a full cache folder: the bake went on without it
         self.timings["compute"] = time.perf_counter() - start
 
     # ----------------------------------------------------------------- 3. finish
