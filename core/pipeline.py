@@ -67,6 +67,7 @@ class BakeResult:
     photons: PhotonMap | None = None
     direct: dict = field(default_factory=dict)
     indirect: dict = field(default_factory=dict)
+    coverage: dict = field(default_factory=dict)  # target name -> (H, W) bool texels covered before dilation
 
 
 def bake(scene: Scene, settings: BakeSettings, progress: Progress | None = None,
@@ -237,6 +238,7 @@ def _bake(scene: Scene, settings: BakeSettings, progress: Progress, executor: Ex
             rgba = np.concatenate([rgb, coverage[..., None].astype(np.float32)], axis=2)
             result.lightmaps[target.name] = _finite(rgba, target.name)
             result.centre_inside[target.name] = w.raster.centre_inside
+            result.coverage[target.name] = w.raster.coverage
             result.direct[target.name] = direct_img.astype(np.float32)
             result.indirect[target.name] = indirect_img.astype(np.float32)
     stats.set(rays_cast=caster_box[0].rays_cast if caster_box else 0)
