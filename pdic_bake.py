@@ -264,7 +264,10 @@ def bake(args) -> int:
         print(f"preview: {path} ({width}x{height}, {time.perf_counter() - start:.2f} s)")
 
     if args.export_glb:
-        print(f"glb: {sub(pdic, 'pdic_addon.gltf_export').export_from_script(bpy, report, args.export_glb)}")
+        try:
+            print(f"glb: {sub(pdic, 'pdic_addon.gltf_export').export_glb(bpy.context, os.path.abspath(args.export_glb))}")
+        except ValueError as e:
+            raise ScriptError(str(e)) from e
 
     if args.save_blend:
         path = os.path.abspath(args.save_blend)
