@@ -266,16 +266,10 @@ def _image_rgb(image) -> np.ndarray:
 
 
 def world_background(scene) -> tuple:
-    """The world's uniform background radiance (linear RGB): Background colour x strength, else its colour."""
-    world = scene.world
-    if world is None:
-        return (0.0, 0.0, 0.0)
-    if world.use_nodes and world.node_tree is not None:
-        for node in world.node_tree.nodes:
-            if node.type == "BACKGROUND":
-                c, s = node.inputs["Color"].default_value, node.inputs["Strength"].default_value
-                return tuple(float(c[i]) * float(s) for i in range(3))
-    return tuple(float(c) for c in world.color)
+    """The world's uniform radiance (linear RGB), read as the bake reads it (what PDIC's camera render shows)."""
+    from .extract_lights import extract_world
+
+    return tuple(float(c) for c in extract_world(scene.world, []).radiance)
 
 
 def export_glb(context, path) -> Path:

@@ -28,7 +28,7 @@ try {
   const state = await page.evaluate(() => window.pdicViewer);
   await page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
   await page.locator('canvas').screenshot({ path: out });
-  console.log(JSON.stringify({ ok: !!state.ready, bound: state.bound, error: state.error || null, console: messages }));
+  console.log(JSON.stringify({ ok: !!state.ready, bound: state.bound, background: state.background, error: state.error || null, console: messages }));
   process.exitCode = state.ready ? 0 : 1;
 } catch (error) {
   console.log(JSON.stringify({ ok: false, error: String(error), console: messages }));

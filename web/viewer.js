@@ -124,7 +124,8 @@ function sceneCamera(gltf, scene) {
 async function main() {
   const loader = new GLTFLoader();
   const gltf = await loader.loadAsync(params.get('model') || 'model.glb');
-  const scene = gltf.scene;
+  const scene = new THREE.Scene();  // gltf.scene is a Group: background needs a Scene
+  scene.add(gltf.scene);
   const pdic = (gltf.parser.json.extras || {}).pdic || {};
   const bg = pdic.background || [0, 0, 0];
   scene.background = new THREE.Color().setRGB(bg[0], bg[1], bg[2], THREE.LinearSRGBColorSpace);
@@ -143,7 +144,7 @@ async function main() {
   renderer.setAnimationLoop(() => { controls.update(); renderer.render(scene, camera); });
   renderer.render(scene, camera);
   status.textContent = `${bound} light-mapped meshes`;
-  window.pdicViewer = { ready: true, bound, lightmaps: (pdic.lightmaps || []).length };
+  window.pdicViewer = { ready: true, bound, lightmaps: (pdic.lightmaps || []).length, background: bg };
 }
 
 main().catch((error) => {
