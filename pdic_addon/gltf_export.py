@@ -321,3 +321,47 @@ def export_glb(context, path) -> Path:
         if os.path.exists(raw):
             os.unlink(raw)
     return path
+
+
+# --------------------------------------------------------------------------- operator
+def _operator_class():
+    import bpy
+    from bpy_extras.io_utils import ExportHelper
+
+    class PDIC_OT_export_glb(bpy.types.Operator, ExportHelper):
+        """Export the baked scene as .glb with its light maps (original materials, light maps on TEXCOORD_1)"""
+
+        bl_idname = "pdic.export_glb"
+        bl_label = "Export glTF with Light Maps"
+        filename_ext = ".glb"
+        filter_glob: bpy.props.StringProperty(default="*.glb", options={"HIDDEN"})
+
+        def execute(self, context):
+            try:
+                path = export_glb(context, self.filepath)
+            except ExportError as e:
+                self.report({"ERROR"}, str(e))
+                return {"CANCELLED"}
+            self.report({"INFO"}, f"PDIC: exported {path}")
+            return {"FINISHED"}
+
+    return PDIC_OT_export_glb
+
+
+classes: list = []
+
+
+def register():
+    import bpy
+
+    classes[:] = [_operator_class()]
+    for cls in classes:
+        bpy.utils.register_class(cls)
+
+
+def unregister():
+    import bpy
+
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)
+    classes.clear()

@@ -156,6 +156,7 @@ def draw_actions(layout, progress: tuple[float, str] | None) -> None:
     row.operator("pdic.bake", text="Bake All", icon="RENDER_STILL").scope = "ALL"
     row.operator("pdic.bake", text="Bake Selected", icon="RESTRICT_SELECT_OFF").scope = "SELECTED"
     layout.operator("pdic.clear", text="Clear", icon="TRASH").scope = "ALL"
+    layout.operator("pdic.export_glb", text="Export glTF", icon="EXPORT")
 
 
 def draw_quality(layout, props) -> None:

@@ -521,7 +521,8 @@ def test_actions_show_progress_and_cancel_while_baking(addon):
     panels.draw_actions(busy, (0.25, "Pass 1: tracing photons 25%"))
     assert [op[:2] for op in idle.operators()] == [("pdic.bake", {"scope": "ALL"}),
                                                    ("pdic.bake", {"scope": "SELECTED"}),
-                                                   ("pdic.clear", {"scope": "ALL"})]
+                                                   ("pdic.clear", {"scope": "ALL"}),
+                                                   ("pdic.export_glb", {})]
     assert [op[0] for op in busy.operators()] == ["pdic.cancel_bake"]
     assert [e[2:] for e in busy.log if e[0] == "progress"] == [(0.25, "Pass 1: tracing photons 25%")]
 
