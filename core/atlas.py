@@ -94,12 +94,14 @@ class Placement:
     uv : (t, 3, 2) float32 per-corner UVs in [0, 1] of the whole atlas.
     window : (x0, y0, width, height) int texels: the atlas rectangle holding its
         charts (x0 from the left, y0 from the bottom row, v = 0).
+    chart : (t,) int32 chart of each triangle, unique within its atlas (-1: no area).
     """
 
     name: str
     atlas: int
     uv: np.ndarray
     window: tuple
+    chart: np.ndarray | None = None
 
     def window_uv(self, size: int, uv: np.ndarray | None = None) -> np.ndarray:
         """(..., 2) float32 UVs in [0, 1] of the window: ``(uv * size - origin) / window size``.
@@ -260,6 +262,8 @@ def _placement(inp: AtlasInput, atlas, mesh: int, atlas_index: int, size: int) -
     _, index, uv = atlas[mesh]
     uv_texel = uv.astype(np.float64) * [atlas.width, atlas.height]
     valid = np.flatnonzero(inp.valid())
+    chart = np.full(len(inp.triangles), -1, np.int32)
+    chart[valid] = atlas.get_mesh_vertex_assignment(mesh)[1].astype(np.int32)[index[:, 0].astype(np.int64)]
     corner = np.zeros((len(inp.triangles), 3, 2))
     corner[valid] = uv_texel[index.astype(np.int64)]  # xatlas keeps face order
     corner = _place_degenerate(corner, inp, valid)
@@ -270,7 +274,7 @@ def _placement(inp: AtlasInput, atlas, mesh: int, atlas_index: int, size: int) -
     lo, hi = np.clip(lo, 0, size - 1), np.clip(hi, 1, size)
     hi = np.maximum(hi, lo + 1)
     window = (int(lo[0]), int(lo[1]), int(hi[0] - lo[0]), int(hi[1] - lo[1]))
-    return Placement(inp.name, atlas_index, uv_atlas, window)
+    return Placement(inp.name, atlas_index, uv_atlas, window, chart)
 
 
 def _place_degenerate(corner: np.ndarray, inp: AtlasInput, valid: np.ndarray) -> np.ndarray:
