@@ -36,7 +36,9 @@ import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
+import bpy
 import numpy as np
+from bpy_extras.io_utils import ExportHelper
 
 from . import uvmaps
 
@@ -278,8 +280,6 @@ def export_glb(context, path) -> Path:
     Raises ExportError naming the problem when nothing is baked or the path cannot be
     written; the scene's shading (original or baked) is the same afterwards.
     """
-    import bpy
-
     from . import writeback
 
     path = Path(bpy.path.abspath(str(path))).resolve()
@@ -324,44 +324,32 @@ def export_glb(context, path) -> Path:
 
 
 # --------------------------------------------------------------------------- operator
-def _operator_class():
-    import bpy
-    from bpy_extras.io_utils import ExportHelper
+class PDIC_OT_export_glb(bpy.types.Operator, ExportHelper):
+    """Export the baked scene as .glb with its light maps (original materials, light maps on TEXCOORD_1)"""
 
-    class PDIC_OT_export_glb(bpy.types.Operator, ExportHelper):
-        """Export the baked scene as .glb with its light maps (original materials, light maps on TEXCOORD_1)"""
+    bl_idname = "pdic.export_glb"
+    bl_label = "Export glTF with Light Maps"
+    filename_ext = ".glb"
+    filter_glob: bpy.props.StringProperty(default="*.glb", options={"HIDDEN"})
 
-        bl_idname = "pdic.export_glb"
-        bl_label = "Export glTF with Light Maps"
-        filename_ext = ".glb"
-        filter_glob: bpy.props.StringProperty(default="*.glb", options={"HIDDEN"})
-
-        def execute(self, context):
-            try:
-                path = export_glb(context, self.filepath)
-            except ExportError as e:
-                self.report({"ERROR"}, str(e))
-                return {"CANCELLED"}
-            self.report({"INFO"}, f"PDIC: exported {path}")
-            return {"FINISHED"}
-
-    return PDIC_OT_export_glb
+    def execute(self, context):
+        try:
+            path = export_glb(context, self.filepath)
+        except ExportError as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"PDIC: exported {path}")
+        return {"FINISHED"}
 
 
-classes: list = []
+classes = (PDIC_OT_export_glb,)
 
 
 def register():
-    import bpy
-
-    classes[:] = [_operator_class()]
     for cls in classes:
         bpy.utils.register_class(cls)
 
 
 def unregister():
-    import bpy
-
     for cls in reversed(classes):
         bpy.utils.unregister_class(cls)
-    classes.clear()

@@ -166,3 +166,63 @@ def test_sponza_packs_into_at_most_two_2048_atlases_without_overlap(separate, bl
     layout = atlas.pack_atlases(object_inputs(objects, tmp_path), ATLAS, 2)
     assert layout.atlas_count <= 2
     assert_no_overlap(layout)
+
+
+# --------------------------------------------------------------------------- the bake in atlas mode
+def test_atlas_bake_gives_each_object_the_texels_it_gets_baked_alone(tmp_path, registered):
+    """Direct light: an object's texels in the shared atlas equal those of baking it as the only
+    target, bit for bit (rasterisation and random streams depend on the target alone). Indirect light
+    comes from one scene-wide cache whose R_min follows the largest texel of the baked targets, so
+    it is compared through the composite: atlas texels = the bake's own window texels, bit for bit."""
+    import json
+    from dataclasses import replace
+
+    import bpy
+
+    from pdic.core import pipeline
+    from pdic.core.settings import preset
+    from pdic.pdic_addon import atlas_bake
+    from pdic.pdic_addon.job import BakeJob
+
+    bpy.ops.wm.open_mainfile(filepath=str(ROOT / "sample_blends" / "cornell_point.blend"))
+    settings = preset("PREVIEW", photons=20_000, threads=2)
+    job = BakeJob(bpy.context, settings, output_folder=str(tmp_path / "maps"), atlas_size=256)
+    report = job.run()
+    layout, scene = job.atlas_layout, job.extraction.scene
+    images, conflicts = atlas_bake.atlas_images(layout, job.result, settings.padding)
+    assert conflicts == 0 and list(images) == ["Atlas0"]
+    for name in ("Floor", "TallBlock"):
+        x0, y0, w, h = layout.placement(name).window
+        cover = job.result.coverage[name]
+        in_atlas = images["Atlas0"][y0:y0 + h, x0:x0 + w, :3][cover]
+        assert np.array_equal(in_atlas, job.result.lightmaps[name][..., :3][cover])
+        target = next(t for t in scene.targets if t.name == name)
+        alone = pipeline.bake(replace(scene, targets=(target,)), replace(settings, indirect=False))
+        assert np.array_equal(alone.coverage[name], cover)
+        assert np.array_equal(alone.direct[name], job.result.direct[name])
+    # the manifest says which atlas image holds each object, and where
+    manifest = json.loads(report.manifest_path.read_text())
+    for entry in manifest["objects"]:
+        assert entry["image"] == "PDIC_Atlas0.exr" and entry["width"] == 256 and entry["atlas"] == 0
+        assert entry["atlas_window"] == list(layout.placement(entry["name"]).window)
+    assert (tmp_path / "maps" / "PDIC_Atlas0.exr").is_file()
+
+
+def test_atlas_mode_refuses_objects_sharing_a_mesh_and_leaves_the_file_unchanged(tmp_path, registered):
+    import bpy
+
+    from pdic.core.settings import preset
+    from pdic.pdic_addon.job import BakeError, BakeJob
+
+    bpy.ops.wm.open_mainfile(filepath=str(ROOT / "sample_blends" / "cornell_point.blend"))
+    floor = bpy.data.objects["Floor"]
+    twin = floor.copy()  # linked duplicate: same mesh
+    bpy.context.scene.collection.objects.link(twin)
+    bpy.context.view_layer.update()
+    uv_maps = [l.name for l in floor.data.uv_layers]
+    job = BakeJob(bpy.context, preset("PREVIEW", photons=5_000), output_folder=str(tmp_path / "maps"),
+                  atlas_size=256)
+    with pytest.raises(BakeError, match="share mesh"):
+        job.run()
+    assert [l.name for l in floor.data.uv_layers] == uv_maps
+    assert not (tmp_path / "maps").exists()
