@@ -56,7 +56,8 @@ def parse_args(args: list[str]) -> argparse.Namespace:
     p.add_argument("--preview-png", metavar="PATH", help="render the scene camera's view lit by the light maps")
     p.add_argument("--preview-width", type=int, default=480, metavar="PX", help="preview width (default 480)")
     p.add_argument("--exposure", type=float, default=0.0, help="preview exposure in stops")
-    p.add_argument("--atlas-size", type=int, default=0, metavar="N", help="pack all objects into shared NxN atlases")
+    p.add_argument("--atlas-size", type=int, metavar="N", help="pack all objects into shared NxN atlases "
+                                                                  "(0 = one map per object; default: the scene's)")
     p.add_argument("--export-glb", metavar="PATH", help="export the baked scene as .glb with its light maps")
     ns = p.parse_args(args)
     if ns.resolution is not None and ns.resolution < 8:

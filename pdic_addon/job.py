@@ -157,12 +157,13 @@ class BakeJob:
     output_folder : Blender path; default ``scene.pdic.output_folder`` or ``//pdic_lightmaps/``.
     image_format : "EXR_HALF" or "EXR_FLOAT"; default from ``scene.pdic``.
     cache_dir : unwrap cache folder (None: :func:`default_cache_dir`, from the add-on preferences).
-    atlas_size : > 0 packs all objects into shared atlases of this size (:mod:`.atlas_bake`); 0 = a map each.
+    atlas_size : > 0 packs all objects into shared atlases of this size (:mod:`.atlas_bake`); 0 = a map
+        each; default ``scene.pdic.atlas_size``.
     """
 
     def __init__(self, context, settings: BakeSettings, objects=None, selected_only: bool = False,
                  output_folder: str | None = None, image_format: str | None = None, cache_dir=None,
-                 atlas_size: int = 0):
+                 atlas_size: int | None = None):
         self.scene = context.scene
         self.view_layer = context.view_layer
         self.context = context
@@ -185,7 +186,8 @@ class BakeJob:
         self.extraction = None
         self.result = None
         self.report: BakeReport | None = None
-        self.atlas_size, self.atlas_layout = int(atlas_size), None
+        self.atlas_size = int(atlas_size if atlas_size is not None else getattr(props, "atlas_size", 0))
+        self.atlas_layout = None
 
     # ----------------------------------------------------------------- 1. prepare
     def prepare(self) -> None:

@@ -185,6 +185,7 @@ def draw_light_map_settings(layout, props) -> None:
     sub = col.column(align=True)
     sub.active = props.texel_density == 0.0  # the density wins when it is set
     sub.prop(props, "default_resolution")
+    layout.prop(props, "atlas_size")
     row = layout.row(align=True, heading="Passes")
     row.prop(props, "direct", toggle=True)
     row.prop(props, "indirect", toggle=True)
