@@ -206,25 +206,22 @@ def _fit_one_atlas(inputs: list, size: int, padding: int) -> float:
     padding and 4x4 block alignment are fixed, hence a search)."""
     area = sum(i.area() for i in inputs)
     tpu = 0.7 * size / math.sqrt(max(area, 1e-30))  # ~50 % fill to start
-    fits, too_big = None, None
+    fit, overflow = 0.0, math.inf  # bracket: largest density that fits, smallest that does not
     for _ in range(2 * MAX_PACK_ATTEMPTS):
         side = _side(_pack(inputs, padding, tpu))
-        if side <= size:
-            fits = max(fits or 0.0, tpu)
-            if side >= GOOD_FILL * size or (too_big is not None and too_big / fits < 1.01):
-                return fits
+        fill = side / size
+        if fill <= 1.0:
+            fit = max(fit, tpu)
         else:
-            too_big = tpu if too_big is None else min(too_big, tpu)
-        if fits is None:
-            tpu *= (size / side) * 0.98
-        elif too_big is None:
-            tpu *= size / side
-        else:
-            tpu = math.sqrt(fits * too_big)
-    if fits is None:
+            overflow = min(overflow, tpu)
+        if fit and (GOOD_FILL <= fill <= 1.0 or overflow / fit < 1.01):
+            return fit
+        # rescale by the side's ratio until the bracket closes, then halve it geometrically
+        tpu = math.sqrt(fit * overflow) if fit and overflow < math.inf else tpu / fill * (0.98 if fill > 1 else 1.0)
+    if not fit:
         raise ValueError(f"atlas: could not fit {len(inputs)} objects into one {size}x{size} atlas "
                          f"with padding {padding}; raise the atlas size")
-    return fits
+    return fit
 
 
 def _group(inputs: list, size: int, padding: int, tpu: float) -> list:
