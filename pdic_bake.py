@@ -56,6 +56,9 @@ def parse_args(args: list[str]) -> argparse.Namespace:
     p.add_argument("--preview-png", metavar="PATH", help="render the scene camera's view lit by the light maps")
     p.add_argument("--preview-width", type=int, default=480, metavar="PX", help="preview width (default 480)")
     p.add_argument("--exposure", type=float, default=0.0, help="preview exposure in stops")
+    p.add_argument("--atlas-size", type=int, metavar="N", help="pack all objects into shared NxN atlases "
+                                                                  "(0 = one map per object; default: the scene's)")
+    p.add_argument("--export-glb", metavar="PATH", help="export the baked scene as .glb with its light maps")
     ns = p.parse_args(args)
     if ns.resolution is not None and ns.resolution < 8:
         p.error(f"--resolution {ns.resolution}: must be at least 8")
@@ -217,7 +220,7 @@ def bake(args) -> int:
             print(f"  .. {stage}", flush=True)
 
     job = BakeJob(bpy.context, settings, objects=objects, output_folder=folder,
-                  image_format=args.format or props.image_format)
+                  image_format=args.format or props.image_format, atlas_size=args.atlas_size)
     start = time.perf_counter()
     try:
         job.prepare()
@@ -260,6 +263,12 @@ def bake(args) -> int:
         except OSError as e:
             raise ScriptError(f"cannot write preview {path!r}: {e.strerror}") from e
         print(f"preview: {path} ({width}x{height}, {time.perf_counter() - start:.2f} s)")
+
+    if args.export_glb:
+        try:
+            print(f"glb: {sub(pdic, 'pdic_addon.gltf_export').export_glb(bpy.context, os.path.abspath(args.export_glb))}")
+        except ValueError as e:
+            raise ScriptError(str(e)) from e
 
     if args.save_blend:
         path = os.path.abspath(args.save_blend)

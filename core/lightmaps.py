@@ -12,10 +12,10 @@ def write_lightmaps(scene, targets, padding: int, progress, stats) -> dict:
 
     targets : the pipeline's per-target work (points, raster, E_direct, E_indirect), in
     ``scene.targets`` order. Returns the :class:`~core.pipeline.BakeResult` fields ``lightmaps``,
-    ``centre_inside``, ``direct`` and ``indirect``.
+    ``centre_inside``, ``direct``, ``indirect`` and ``coverage``.
     """
     progress.begin("Writing light maps")
-    out = {"lightmaps": {}, "centre_inside": {}, "direct": {}, "indirect": {}}
+    out = {"lightmaps": {}, "centre_inside": {}, "direct": {}, "indirect": {}, "coverage": {}}
     with stats.stage("dilate"):
         for target, t in zip(scene.targets, targets):
             direct_img = texel_stage.splat(t.E_direct, t.points, t.raster) / np.pi
@@ -24,6 +24,7 @@ def write_lightmaps(scene, targets, padding: int, progress, stats) -> dict:
             rgba = np.concatenate([rgb, coverage[..., None].astype(np.float32)], axis=2)
             out["lightmaps"][target.name] = finite(rgba, target.name)
             out["centre_inside"][target.name] = t.raster.centre_inside
+            out["coverage"][target.name] = t.raster.coverage
             out["direct"][target.name] = direct_img.astype(np.float32)
             out["indirect"][target.name] = indirect_img.astype(np.float32)
     return out

@@ -56,6 +56,7 @@ class BakeResult:
     photons : the photon map (None when indirect light was not baked).
     photon_lighting : the photons' section 3.1 sums from passes 2-3 (None without photons).
     direct, indirect : target name -> (H, W, 3) float32 E / pi of each part, before dilation.
+    coverage : target name -> (H, W) bool, texels covered before dilation (atlases composite these).
     """
 
     lightmaps: dict = field(default_factory=dict)
@@ -66,6 +67,7 @@ class BakeResult:
     photon_lighting: PhotonLighting | None = None
     direct: dict = field(default_factory=dict)
     indirect: dict = field(default_factory=dict)
+    coverage: dict = field(default_factory=dict)
 
 
 def bake(scene: Scene, settings: BakeSettings, progress: Progress | None = None,

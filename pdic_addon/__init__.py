@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import importlib
 
-MODULE_NAMES = ("preferences", "properties", "operators", "panels", "overlay")
+MODULE_NAMES = ("preferences", "properties", "operators", "gltf_export", "panels", "overlay")
 
 
 def _modules():

@@ -27,7 +27,7 @@ from ..core import unwrap
 from ..core.executor import Progress
 from ..core.scene import SceneError
 from ..core.settings import BakeSettings
-from . import overlay, preferences, uvmaps, writeback
+from . import atlas_bake, overlay, preferences, uvmaps, writeback
 from .extract import extract_scene
 
 
@@ -157,10 +157,13 @@ class BakeJob:
     output_folder : Blender path; default ``scene.pdic.output_folder`` or ``//pdic_lightmaps/``.
     image_format : "EXR_HALF" or "EXR_FLOAT"; default from ``scene.pdic``.
     cache_dir : unwrap cache folder (None: :func:`default_cache_dir`, from the add-on preferences).
+    atlas_size : > 0 packs all objects into shared atlases of this size (:mod:`.atlas_bake`); 0 = a map
+        each; default ``scene.pdic.atlas_size``.
     """
 
     def __init__(self, context, settings: BakeSettings, objects=None, selected_only: bool = False,
-                 output_folder: str | None = None, image_format: str | None = None, cache_dir=None):
+                 output_folder: str | None = None, image_format: str | None = None, cache_dir=None,
+                 atlas_size: int | None = None):
         self.scene = context.scene
         self.view_layer = context.view_layer
         self.context = context
@@ -183,6 +186,8 @@ class BakeJob:
         self.extraction = None
         self.result = None
         self.report: BakeReport | None = None
+        self.atlas_size = int(atlas_size if atlas_size is not None else getattr(props, "atlas_size", 0))
+        self.atlas_layout = None
 
     # ----------------------------------------------------------------- 1. prepare
     def prepare(self) -> None:
@@ -262,7 +267,9 @@ class BakeJob:
 
         # -- unwrap each mesh once (positions scaled like its first user in the world)
         start = time.perf_counter()
-        for mesh, users in by_mesh.items():
+        if self.atlas_size:
+            self.atlas_layout = atlas_bake.unwrap_into_atlases(self, by_mesh, triangles)
+        for mesh, users in (by_mesh.items() if not self.atlas_size else ()):
             tris = triangles[mesh]
             res = self.resolutions[users[0].name][0]
             scale = np.asarray(tuple(users[0].matrix_world.to_scale()), np.float64)
@@ -302,6 +309,8 @@ class BakeJob:
             targets = {o.name for o in objects}
             writeback.set_shading([o for o in showing if o.name not in targets], baked=True)
         self.warnings += self.extraction.warnings  # extraction names degenerate triangles and dark scenes
+        if self.atlas_layout is not None:
+            self.extraction.scene = atlas_bake.window_scene(self.extraction.scene, self.atlas_layout)
         self.timings["extract"] = time.perf_counter() - start
 
     @property
@@ -340,6 +349,7 @@ class BakeJob:
         plan = self.plan
         writeback.ensure_directory(plan, self.txn)
         entries, new_outputs = [], []
+        atlases = atlas_bake.write_atlas_images(self, plan) if self.atlas_layout is not None else {}
         for name in self.extraction.target_objects:
             obj = bpy.data.objects.get(name)
             if obj is None:
@@ -347,13 +357,16 @@ class BakeJob:
             pixels = self.result.lightmaps[name]
             rebake = bool(writeback.owned_images(name) or writeback.owned_materials(name))
             temp = writeback.image_name(name) + ".pdic_new" if rebake else None
-            image, relpath = writeback.write_image(name, pixels, plan, self.image_format, self.txn, name=temp)
+            if name in atlases:
+                image, relpath, _ = atlases[name]
+            else:
+                image, relpath = writeback.write_image(name, pixels, plan, self.image_format, self.txn, name=temp)
             copies, warnings = writeback.build_copies(obj, image, self.txn, temporary=rebake)
             self.warnings += warnings
             new_outputs.append((obj, image, copies))
-            h, w = pixels.shape[:2]
+            h, w = atlases[name][2].shape[:2] if name in atlases else pixels.shape[:2]
             entries.append(dict(
-                name=name, image=relpath, image_name=writeback.image_name(name), uv_map=uvmaps.LIGHTMAP_UV,
+                name=name, image=relpath, image_name=image.name.removesuffix(".pdic_new"), uv_map=uvmaps.LIGHTMAP_UV,
                 width=int(w), height=int(h), format="OPEN_EXR", color_depth=writeback.FORMATS[self.image_format],
                 color_space="Non-Color", channels="RGBA", texels=int((pixels[..., 3] > 0).sum()),
                 materials=[c.name.removesuffix(".pdic_new") for c in copies], **self.unwraps.get(name, {})))
@@ -376,9 +389,12 @@ class BakeJob:
         for obj, image, copies in new_outputs:
             writeback.remove_outputs(obj.name, keep={image, *copies})
             writeback.assign_copies(obj, copies, self.txn)
-            image.name = writeback.image_name(obj.name)
+            if obj.name not in atlases:
+                image.name = writeback.image_name(obj.name)
             for copy in copies:
                 copy.name = copy.name.removesuffix(".pdic_new")
+        if atlases:
+            atlas_bake.commit_atlas_images(self)
         self.txn.commit()
         self.timings["finish"] = time.perf_counter() - start
         return BakeReport(entries, list(self.warnings), stats, plan, manifest_path, records_path)

@@ -156,6 +156,7 @@ def draw_actions(layout, progress: tuple[float, str] | None) -> None:
     row.operator("pdic.bake", text="Bake All", icon="RENDER_STILL").scope = "ALL"
     row.operator("pdic.bake", text="Bake Selected", icon="RESTRICT_SELECT_OFF").scope = "SELECTED"
     layout.operator("pdic.clear", text="Clear", icon="TRASH").scope = "ALL"
+    layout.operator("pdic.export_glb", text="Export glTF", icon="EXPORT")
 
 
 def draw_quality(layout, props) -> None:
@@ -184,6 +185,7 @@ def draw_light_map_settings(layout, props) -> None:
     sub = col.column(align=True)
     sub.active = props.texel_density == 0.0  # the density wins when it is set
     sub.prop(props, "default_resolution")
+    layout.prop(props, "atlas_size")
     row = layout.row(align=True, heading="Passes")
     row.prop(props, "direct", toggle=True)
     row.prop(props, "indirect", toggle=True)

@@ -65,6 +65,9 @@ class PDIC_SceneSettings(bpy.types.PropertyGroup):
     default_resolution: IntProperty(name="Resolution", default=DEFAULTS.default_resolution, min=8, max=8192,
                                     description="Light-map width and height of an object without an override, "
                                                 "when the texel density is 0")
+    atlas_size: IntProperty(name="Atlas Size", default=0, min=0, max=16384,
+                            description="Pack all baked objects into shared light-map atlases of this width and "
+                                        "height (0 = one light map per object). Typical 1024-4096")
     direct: BoolProperty(name="Direct", default=True,
                          description="Bake direct light: shadow rays from every texel to every light")
     indirect: BoolProperty(name="Indirect", default=True,

@@ -336,7 +336,7 @@ def test_settings_survive_save_and_reload(addon, blender, tmp_path):
     build_scene(blender)
     props = blender.context.scene.pdic
     changed = dict(quality="PREVIEW", photons=123_456, max_bounces=9, a=0.25, hemisphere_theta=7,
-                   hemisphere_phi=15, texel_density=12.5, default_resolution=64, direct=False, indirect=True,
+                   hemisphere_phi=15, texel_density=12.5, default_resolution=64, atlas_size=1024, direct=False, indirect=True,
                    seed=42, output_folder="//maps/", image_format="EXR_FLOAT", show_records=True,
                    show_record_discs=True, record_point_size=7.0, last_stats='{"x": 1}',
                    manifest_file="//maps/pdic_manifest.json", records_file="//maps/pdic_records.npz")
@@ -521,7 +521,8 @@ def test_actions_show_progress_and_cancel_while_baking(addon):
     panels.draw_actions(busy, (0.25, "Pass 1: tracing photons 25%"))
     assert [op[:2] for op in idle.operators()] == [("pdic.bake", {"scope": "ALL"}),
                                                    ("pdic.bake", {"scope": "SELECTED"}),
-                                                   ("pdic.clear", {"scope": "ALL"})]
+                                                   ("pdic.clear", {"scope": "ALL"}),
+                                                   ("pdic.export_glb", {})]
     assert [op[0] for op in busy.operators()] == ["pdic.cancel_bake"]
     assert [e[2:] for e in busy.log if e[0] == "progress"] == [(0.25, "Pass 1: tracing photons 25%")]
 
