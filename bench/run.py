@@ -309,7 +309,7 @@ def section_tables(quick: bool, errors_ref=None) -> dict:
         if name != "Cornell":  # no committed reference: a noise-corrected Cycles pair (see noise_corrected_error)
             spp = 16 if quick else TABLE_REFERENCE_SPP[name]
             pair, t_pair = timed(cycles_pair, objects, scene, spp, bounces)
-            references[name] = dict(spp=spp, seconds=t_pair, noise_indirect=seed_noise(*pair))
+            references[name] = dict(spp=spp, diffuse_bounces=bounces, seconds=t_pair, noise_indirect=seed_noise(*pair))
             log("tables reference", name, references[name])
         for reuse in (True, False):
             settings = preset("FINAL", photons=photons, max_bounces=bounces, reuse_photon_paths=reuse, **extra)

@@ -160,3 +160,31 @@ def test_unknown_pass_is_rejected(blender):
     plane = _plane(blender)
     with pytest.raises(cr.CyclesBakeError, match="COLOR"):
         cr.cycles_bake([plane], "UVMap", 16, 16, {"DIRECT", "COLOR"}, samples=4)
+
+
+def test_light_map_that_renders_textures_is_refused(blender):
+    """Textures without a UV Map node sample the active render map: baking into it would change albedos."""
+    plane = _plane(blender)
+    plane.data.uv_layers.new(name="LightMap")
+    plane.data.uv_layers["LightMap"].active_render = True
+    tree = plane.data.materials[0].node_tree
+    tex = tree.nodes.new("ShaderNodeTexImage")
+    tex.image = blender.data.images.new("Albedo", 4, 4)
+    tree.links.new(tex.outputs["Color"], tree.nodes["Principled BSDF"].inputs["Base Color"])
+    with pytest.raises(cr.CyclesBakeError, match="Plane: UV map 'LightMap' is the active render map.*'UVMap'"):
+        cr.cycles_bake([plane], "LightMap", 8, 8, {"INDIRECT"}, samples=1)
+    uv_node = tree.nodes.new("ShaderNodeUVMap")
+    uv_node.uv_map = "UVMap"
+    tree.links.new(uv_node.outputs["UV"], tex.inputs["Vector"])
+    assert cr.cycles_bake([plane], "LightMap", 8, 8, {"INDIRECT"}, samples=1)["Plane"].shape == (8, 8, 3)
+
+
+def test_bake_reports_the_bounce_limits_it_ran_with(blender):
+    plane = _plane(blender)
+    _black_world(blender)
+    scene_default = blender.context.scene.cycles.diffuse_bounces
+    kept = cr.cycles_bake_full([plane], "UVMap", 4, 4, {"INDIRECT"}, 1)
+    raised = cr.cycles_bake_full([plane], "UVMap", 4, 4, {"INDIRECT"}, 1, diffuse_bounces=20)
+    assert kept.diffuse_bounces == scene_default
+    assert (raised.diffuse_bounces, raised.max_bounces) == (20, 20)
+    assert blender.context.scene.cycles.diffuse_bounces == scene_default
