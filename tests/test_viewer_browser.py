@@ -113,10 +113,10 @@ def quantised_lightmaps(job) -> dict:
 
 
 def reference_render(bpy, job, width: int) -> np.ndarray:
-    """PDIC's camera render (core/preview.py) of the quantised light maps, tone-mapped: (H, W, 3) 0..1."""
+    """PDIC's camera render (core/camera_render.py) of the quantised light maps, tone-mapped: (H, W, 3) 0..1."""
     import pdic
     import pdic_bake
-    from pdic.core import preview
+    from pdic.core import camera_render as preview
 
     camera, aspect = pdic_bake.preview_camera(bpy, pdic, job.extraction.scene)
     height = int(round(width * aspect))
