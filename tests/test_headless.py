@@ -79,13 +79,13 @@ def test_headless_bake_writes_images_manifest_and_preview(scene_blend, tmp_path)
     entries = {e["name"]: e for e in doc["objects"]}
     assert set(entries) == {"Floor", "Box"}
     for name, e in entries.items():
-        assert e["image"] == f"PDIC_{name}.exr" and (out / e["image"]).is_file()
+        assert e["image"] == f"scene.PDIC_{name}.exr" and (out / e["image"]).is_file()
         assert e["uv_map"] == "PDIC_Lightmap" and (e["width"], e["height"]) == (32, 32)
         assert 0 < e["texels"] <= 32 * 32
     assert doc["settings"]["photons"] == 4000 and doc["settings"]["quality"] == "CUSTOM"
     assert doc["stats"]["seconds_total"] > 0 and "addon_unwrap" in doc["stats"]["seconds"]
     # the report names stages, texel counts and output paths
-    assert "stage times" in r.stdout and "32x32 texels" in r.stdout and str(out / "PDIC_Floor.exr") in r.stdout
+    assert "stage times" in r.stdout and "32x32 texels" in r.stdout and str(out / "scene.PDIC_Floor.exr") in r.stdout
     # preview: the lit floor under the lamp is brighter than the unlit sky corner
     image = read_png(png)
     assert image.shape == (54, 96, 3)
@@ -97,12 +97,12 @@ def test_save_blend_keeps_light_maps_linked_to_uv_map(scene_blend, tmp_path, ble
     saved = tmp_path / "baked.blend"
     r = run("--blend", blend, "--save-blend", saved, "--objects", "Floor", *FAST)
     assert r.returncode == 0, r.stderr
-    assert (tmp_path / "pdic_lightmaps" / "PDIC_Floor.exr").is_file()  # default //pdic_lightmaps/
+    assert (tmp_path / "pdic_lightmaps" / "scene.PDIC_Floor.exr").is_file()  # default //pdic_lightmaps/
     blender.ops.wm.open_mainfile(filepath=str(saved))
     floor = blender.data.objects["Floor"]
     assert "PDIC_Lightmap" in floor.data.uv_layers and "PDIC_Box" not in blender.data.images
     image = blender.data.images["PDIC_Floor"]
-    assert image.filepath == "//pdic_lightmaps/PDIC_Floor.exr" and len(image.pixels) == 32 * 32 * 4
+    assert image.filepath == "//pdic_lightmaps/scene.PDIC_Floor.exr" and len(image.pixels) == 32 * 32 * 4
     assert floor.material_slots[0].link == "OBJECT" and floor.material_slots[0].material.name == "FloorMat.PDIC.Floor"
 
 
