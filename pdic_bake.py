@@ -34,6 +34,10 @@ class ScriptError(Exception):
     """An error reported as ``pdic_bake: error: ...`` with exit code 1."""
 
 
+class UsageError(ScriptError):
+    """Arguments that cannot work together (found after loading the .blend): exit code 2."""
+
+
 def script_args(argv: list[str]) -> list[str]:
     if "--" in argv:
         return argv[argv.index("--") + 1:]
@@ -158,7 +162,7 @@ def preview_camera(bpy, pdic, scene_core):
     Camera = sub(pdic, "core.preview").Camera
     cam = bpy.context.scene.camera
     if cam is None or cam.type != "CAMERA":
-        raise ScriptError("--preview-png needs a scene camera (Scene > Camera is empty)")
+        raise UsageError("--preview-png needs a scene camera (Scene > Camera is empty); nothing was baked")
     frame = np.array([tuple(v) for v in cam.data.view_frame(scene=bpy.context.scene)])
     m = np.array(cam.matrix_world, np.float64)
     rotation = m[:3, :3] / np.linalg.norm(m[:3, :3], axis=0)
@@ -185,7 +189,7 @@ def main(argv: list[str]) -> int:
         return bake(args)
     except ScriptError as e:
         print(f"pdic_bake: error: {e}", file=sys.stderr)
-        return EXIT_ERROR
+        return EXIT_USAGE if isinstance(e, UsageError) else EXIT_ERROR
     except KeyboardInterrupt:  # a second Ctrl+C, or one outside the bake: the job has rolled back
         print("pdic_bake: interrupted; outputs left as they were", file=sys.stderr)
         return EXIT_INTERRUPTED
@@ -205,10 +209,10 @@ def check_save_path(bpy, args) -> None:
     source = bpy.data.filepath and os.path.realpath(bpy.data.filepath)
     same = bool(source) and (target == source or (os.path.exists(target) and os.path.samefile(target, source)))
     if same:
-        raise ScriptError(f"--save-blend {args.save_blend!r} is the .blend being baked ({bpy.data.filepath}); "
+        raise UsageError(f"--save-blend {args.save_blend!r} is the .blend being baked ({bpy.data.filepath}); "
                           f"the input is never overwritten: save to another path")
     if os.path.isdir(target):
-        raise ScriptError(f"--save-blend {args.save_blend!r} is a folder; give a .blend file path")
+        raise UsageError(f"--save-blend {args.save_blend!r} is a folder; give a .blend file path")
 
 
 def chosen_objects(bpy, args):

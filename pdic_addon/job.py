@@ -164,7 +164,7 @@ def baked_mesh_partners(view_layer, objects) -> list:
     """
     meshes = {o.data for o in objects}
     chosen = set(objects)
-    return [o for o in view_layer.objects if o.type == "MESH" and o.data in meshes and o not in chosen
+    return [o for o in view_layer.objects if o is not None and o.type == "MESH" and o.data in meshes and o not in chosen
             and writeback.owned_images(o) and _skip_reason(view_layer, o) is None]
 
 
@@ -332,11 +332,12 @@ class BakeJob:
         if self.explicit_objects is not None:
             return self.explicit_objects
         if self.selected_only:
-            candidates = [o for o in self.view_layer.objects if o.select_get(view_layer=self.view_layer)]
+            candidates = [o for o in self.view_layer.objects
+                          if o is not None and o.select_get(view_layer=self.view_layer)]
             if not candidates:
                 raise BakeError("nothing to bake: no objects are selected (select meshes or bake all)")
             return candidates
-        candidates = list(self.view_layer.objects)
+        candidates = [o for o in self.view_layer.objects if o is not None]  # None: just deleted
         if not candidates:
             raise BakeError("nothing to bake: the view layer has no objects")
         return candidates

@@ -295,11 +295,15 @@ def is_pdic(idblock) -> bool:
 
 
 def owner_of(idblock):
-    """The object a PDIC datablock belongs to (followed through renames), or None if it is gone."""
-    pointer = idblock.get(OWNER_OBJECT)
-    if pointer is not None:
-        return pointer
-    return bpy.data.objects.get(idblock[OWNER])
+    """The object a PDIC datablock belongs to (followed through renames), or None if it is gone.
+
+    An object deleted (or joined into another) while a copy still points at it lingers
+    in ``bpy.data`` without a scene: that counts as gone.
+    """
+    obj = idblock.get(OWNER_OBJECT)
+    if obj is None:
+        obj = bpy.data.objects.get(idblock[OWNER])
+    return obj if obj is not None and obj.users_scene else None
 
 
 def _owned_by(idblock, owner) -> bool:

@@ -136,3 +136,71 @@ def test_bad_input_names_the_culprit(scene_blend, tmp_path):
     assert r.returncode == 1 and "missing.blend" in r.stderr
     r = run("--blend", blend, "--passes", "diract", *FAST)
     assert r.returncode == 2 and "diract" in r.stderr
+
+
+# --------------------------------------------------------------------------- issue 14
+def folder_state(folder: Path):
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())} if folder.exists() else None
+
+
+@pytest.mark.parametrize("how", ["same", "relative", "symlink"])
+def test_save_blend_never_overwrites_the_input(scene_blend, tmp_path, how):
+    blend = scene_blend()
+    before = digest(blend)
+    target = {"same": blend, "relative": Path("..") / blend.name}.get(how)
+    if how == "symlink":
+        target = tmp_path / "link.blend"
+        target.symlink_to(blend)
+    cwd = tmp_path / "work"
+    cwd.mkdir()
+    r = subprocess.run([sys.executable, str(SCRIPT), "--blend", str(blend), "--save-blend", str(target), *FAST],
+                       cwd=cwd, capture_output=True, text=True, timeout=240)
+    assert r.returncode == 2 and "--save-blend" in r.stderr and "being baked" in r.stderr
+    assert digest(blend) == before and not (tmp_path / "pdic_lightmaps").exists()
+
+
+@pytest.mark.parametrize("option, value", [("--seed", "-1"), ("--threads", "-1"), ("--photons", "-1"),
+                                           ("--texel-density", "inf"), ("--texel-density", "nan")])
+def test_bad_numbers_exit_2_naming_the_option(option, value):
+    args = [a for a in FAST if a not in ("--resolution", "32")] if option == "--texel-density" else FAST
+    r = run(*args, option, value)
+    assert r.returncode == 2 and option in r.stderr and "choose_resolution" not in r.stderr, r.stderr
+
+
+def test_preview_without_a_camera_fails_before_any_output(blender, tmp_path):
+    blender.ops.wm.read_factory_settings(use_empty=True)
+    blender.ops.mesh.primitive_plane_add(size=6)
+    blender.ops.object.light_add(type="POINT", location=(0, 0, 3))
+    blend = tmp_path / "nocam.blend"
+    blender.ops.wm.save_as_mainfile(filepath=str(blend))
+    r = run("--blend", blend, "--output", tmp_path / "maps", "--preview-png", tmp_path / "p.png", *FAST)
+    assert r.returncode == 2 and "camera" in r.stderr
+    assert not (tmp_path / "maps").exists() and not (tmp_path / "p.png").exists()
+
+
+def test_too_many_photons_are_refused_with_a_memory_estimate(scene_blend, tmp_path):
+    blend = scene_blend()
+    r = run("--blend", blend, "--output", tmp_path / "maps", *FAST, "--photons", "1000000000000")
+    assert r.returncode == 1 and "Photons" in r.stderr and "GiB of memory" in r.stderr, r.stderr
+    assert "MemoryError" not in r.stderr and not (tmp_path / "maps").exists()
+
+
+def test_ctrl_c_cancels_exits_130_and_leaves_outputs_as_they_were(scene_blend, tmp_path):
+    import signal
+    import time
+
+    blend = scene_blend()
+    out = tmp_path / "maps"
+    assert run("--blend", blend, "--output", out, *FAST).returncode == 0
+    before = folder_state(out)
+    slow = ["--quality", "CUSTOM", "--photons", "50000000", "--resolution", "32", "--threads", "1", "--seed", "5"]
+    p = subprocess.Popen([sys.executable, str(SCRIPT), "--blend", str(blend), "--output", str(out), *slow],
+                         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    for line in p.stdout:  # wait until the bake is under way
+        if "photons" in line.lower() and ".." in line:
+            break
+    time.sleep(0.5)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err
+    assert "cancel" in err and folder_state(out) == before
