@@ -432,9 +432,9 @@ class BakeJob:
         for mesh_name, mesh in self.meshes.items():
             uvmaps.write_lightmap_uv(mesh, self.uv_loops[mesh_name], self.txn)
         showing = [o for o in self.scene.objects if writeback.is_baked_shading(o)]
-        writeback.set_shading(showing, baked=False)
-        for obj in showing:
+        for obj in showing:  # registered first: undoing a switch that did not happen changes nothing
             self.txn.add(lambda obj=obj: writeback.set_shading([obj], baked=True), f"show baked lighting on {obj.name}")
+        writeback.set_shading(showing, baked=False)
         depsgraph = self.context.evaluated_depsgraph_get()
         depsgraph.update()
         try:

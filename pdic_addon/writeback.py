@@ -431,12 +431,13 @@ def is_edited(copy) -> bool:
     return FINGERPRINT in copy and copy[FINGERPRINT] != fingerprint(copy)
 
 
-def build_copy(obj, slot_index: int, source, image, name: str):
+def build_copy(obj, slot_index: int, source, image, name: str, txn=None):
     """A new material showing ``light map x base colour`` of ``source`` (None = empty slot).
 
     Tree: UV Map (PDIC_Lightmap) -> Image Texture (light map, Non-Color) ->
     Vector Math MULTIPLY with the source's base colour (its linked socket or
     constant) [-> ADD constant emission] -> Emission (strength 1) -> Material Output.
+    ``txn`` records the copy's removal as soon as it exists.
     """
     if source is not None:
         copy = source.copy()
@@ -445,18 +446,24 @@ def build_copy(obj, slot_index: int, source, image, name: str):
                 del copy[key]
     else:
         copy = bpy.data.materials.new(name)
-    copy.name = name
-    if copy.node_tree is None:
-        copy.use_nodes = True
-    from_socket, constant = _base_color_source(copy) if source is not None else (None, DEFAULT_BASE_COLOR)
-    emission = _constant_emission(copy) if source is not None else (0.0, 0.0, 0.0)
-    _add_baked_lighting_nodes(copy.node_tree, image, from_socket, constant, emission)
-    copy.use_fake_user = True
-    tag_owner(copy, obj.name)
-    copy[SLOT] = slot_index
-    if source is not None:
-        copy[SOURCE] = source
-    copy[FINGERPRINT] = fingerprint(copy)
+    if txn is not None:
+        txn.add(lambda: _remove_material(copy), f"remove material {name}")
+    try:  # a half-built copy must not stay behind
+        copy.name = name
+        if copy.node_tree is None:
+            copy.use_nodes = True
+        from_socket, constant = _base_color_source(copy) if source is not None else (None, DEFAULT_BASE_COLOR)
+        emission = _constant_emission(copy) if source is not None else (0.0, 0.0, 0.0)
+        _add_baked_lighting_nodes(copy.node_tree, image, from_socket, constant, emission)
+        copy.use_fake_user = True
+        tag_owner(copy, obj.name)
+        copy[SLOT] = slot_index
+        if source is not None:
+            copy[SOURCE] = source
+        copy[FINGERPRINT] = fingerprint(copy)
+    except BaseException:
+        _remove_material(copy)
+        raise
     return copy
 
 
@@ -516,9 +523,7 @@ def build_copies(obj, image, txn, temporary: bool = False) -> tuple[list, list[s
         source = slot.material
         base = source.name if source is not None else f"Slot{i}"
         name = copy_name(base, obj.name) + (TEMPORARY_SUFFIX if temporary else "")
-        copy = build_copy(obj, i, source, image, name)
-        txn.add(lambda copy=copy: _remove_material(copy), f"remove material {name}")
-        copies.append(copy)
+        copies.append(build_copy(obj, i, source, image, name, txn))
     return copies, warnings
 
 
@@ -537,9 +542,11 @@ def assign_copies(obj, copies: list, txn=None) -> None:
     for i, copy in enumerate(copies):
         if _shows_copy(obj, i) == copy:
             continue
+        if txn is not None:  # registered first: a failure half-way still restores the slot
+            slot = obj.material_slots[i]
+            txn.add(lambda obj=obj, i=i, link=slot.link, user=_object_material(slot): _set_slot(obj, i, link, user),
+                    f"restore slot {i} of {obj.name}")
         assign_copy(obj, i, copy)
-        if txn is not None:
-            txn.add(lambda obj=obj, i=i, copy=copy: _restore_slot(obj, i, copy), f"restore slot {i} of {obj.name}")
 
 
 def assign_copy(obj, index: int, copy) -> None:
@@ -557,10 +564,14 @@ def assign_copy(obj, index: int, copy) -> None:
 
 def _restore_slot(obj, index: int, copy) -> None:
     """Put the slot back as the user had it (link and object-level material)."""
+    _set_slot(obj, index, copy.get(USER_LINK, "DATA"), copy.get(USER_OBJECT_MATERIAL))
+
+
+def _set_slot(obj, index: int, link: str, object_material) -> None:
     slot = obj.material_slots[index]
     slot.link = "OBJECT"
-    slot.material = copy.get(USER_OBJECT_MATERIAL)
-    slot.link = copy.get(USER_LINK, "DATA")
+    slot.material = object_material
+    slot.link = link
 
 
 def _shows_copy(obj, index: int):
