@@ -8,6 +8,7 @@ import threading
 
 import numpy as np
 import pytest
+from addon_scenes import fast_settings, lamp
 from snapshot import snapshot
 
 from pdic.core import manifest
@@ -46,24 +47,8 @@ def mesh_object(bpy, name, kind="cube", location=(0, 0, 0.5), mat=None, mesh=Non
     return obj
 
 
-def lamp(bpy, energy=300.0):
-    bpy.ops.object.light_add(type="POINT", location=(0, 0, 3))
-    bpy.context.object.data.energy = energy
-    return bpy.context.object
-
-
-def fast(bpy):
-    props = bpy.context.scene.pdic
-    props.quality = "CUSTOM"
-    props.photons = 2000
-    props.max_bounces = 1
-    props.hemisphere_theta, props.hemisphere_phi = 2, 4
-    props.default_resolution = RES
-    props.image_format = "EXR_FLOAT"
-
-
 def save(bpy, tmp_path, name="scene.blend"):
-    fast(bpy)
+    fast_settings(bpy, RES, "EXR_FLOAT")
     bpy.ops.object.select_all(action="DESELECT")
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / name))
 
