@@ -9,7 +9,7 @@ With the bpy wheel (plain Python)::
     .venv/bin/python pdic_bake.py --blend scene.blend --output maps/ --preview-png look.png
 
 Bakes the scene's light maps (all bakeable meshes, or ``--objects``), writes
-``PDIC_<object>.exr`` and ``pdic_manifest.json`` into the output folder and
+``<blend>.PDIC_<object>.exr`` and ``pdic_manifest.json`` into the output folder and
 prints per-stage times, texel counts and output paths. The .blend on disk is
 never modified; ``--save-blend PATH`` saves the baked scene (UV maps, images,
 material copies) as a new file, never the input. On error the message names
