@@ -177,13 +177,18 @@ MEMORY_FRACTION = 0.8
 """A bake may plan to use at most this fraction of the machine's physical memory."""
 
 
-def memory_estimate(settings: BakeSettings, texels: int) -> int:
-    """Bytes a bake's largest arrays need: stored photons and texel samples (plus 300 MB of working set)."""
+def photon_bytes(settings: BakeSettings) -> float:
+    """Bytes of the stored photons (pass 1) a bake is expected to hold at most."""
     from ..core.photons import PhotonMap
 
     stored = settings.photons * min(1 + settings.max_bounces, STORED_PER_EMITTED) if settings.indirect else 0
+    return stored * PhotonMap.BYTES_PER_PHOTON
+
+
+def memory_estimate(settings: BakeSettings, texels: int) -> int:
+    """Bytes a bake's largest arrays need: stored photons and texel samples (plus 300 MB of working set)."""
     samples = texels * settings.texel_samples ** 2
-    return int(stored * PhotonMap.BYTES_PER_PHOTON + samples * BYTES_PER_TEXEL_SAMPLE + texels * 64 + 300e6)
+    return int(photon_bytes(settings) + samples * BYTES_PER_TEXEL_SAMPLE + texels * 64 + 300e6)
 
 
 def physical_memory() -> int:
@@ -202,8 +207,7 @@ def check_memory(settings: BakeSettings, texels: int, largest: str) -> None:
     need, have = memory_estimate(settings, texels), physical_memory()
     if need <= MEMORY_FRACTION * have:
         return
-    photons = settings.photons * min(1 + settings.max_bounces, STORED_PER_EMITTED) * 101 if settings.indirect else 0
-    if photons >= need / 2:
+    if photon_bytes(settings) >= need / 2:
         culprit = f"the Photons setting ({settings.photons:,} photons)"
     else:
         culprit = (f"the light-map resolution ({texels:,} texels in all, largest {largest}; lower Texel Density "
@@ -232,7 +236,7 @@ class BakeReport:
 
 # --------------------------------------------------------------------------- the job
 MAIN, WORKER = "main", "worker"
-USER_ERRORS = (SceneError, uvmaps.UVMapError, writeback.WritebackError, ValueError, KeyError, OSError)
+USER_ERRORS = (SceneError, uvmaps.UVMapError, writeback.WritebackError, ValueError, OSError)
 """Failures caused by the scene or the environment: reported as BakeError with their message."""
 HALF_MAX = 65504.0
 """Largest finite half-float value: EXR_HALF light maps clamp brighter texels to it."""
@@ -306,7 +310,10 @@ class BakeJob:
     def _call(self, name: str, progress: Progress | None) -> None:
         start = time.perf_counter()
         step = getattr(self, "_" + name)
-        step(progress) if dict(self.STEPS)[name] == WORKER else step()
+        if dict(self.STEPS)[name] == WORKER:  # worker steps report progress and check for cancel
+            step(progress)
+        else:
+            step()
         self.timings[name] = time.perf_counter() - start
 
     # ----------------------------------------------------------------- step 1: choose (main)
