@@ -530,12 +530,13 @@ class BakeJob:
         if self.plan.pack:
             return None
         folder, blend = self.plan.directory, os.path.basename(bpy.data.filepath)
+        baked = {e["name"] for e in entries}
 
         def in_use(entry) -> bool:
-            if entry.get("blend", "") != blend:  # another .blend's map in a shared folder
+            if "blend" in entry and entry["blend"] != blend:  # another .blend's map in a shared folder
                 return (folder / str(entry.get("image", ""))).is_file()
-            obj = bpy.data.objects.get(entry["name"])
-            return obj is not None and bool(writeback.owned_images(obj))
+            obj = bpy.data.objects.get(entry["name"])  # ours (or written before entries named their .blend)
+            return entry["name"] not in baked and obj is not None and bool(writeback.owned_images(obj))
 
         objects = core_manifest.merge_objects(core_manifest.read_objects(folder), entries, in_use)
         path = folder / core_manifest.FILENAME

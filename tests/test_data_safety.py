@@ -344,3 +344,16 @@ def test_full_disk_is_reported_as_such(tmp_path):
     message = atomic.describe_os_error(OSError(errno.ENOSPC, "Invalid argument"), tmp_path)
     assert "no space left" in message and str(tmp_path) in message
 
+
+
+def test_manifest_entries_from_before_blend_keys_are_replaced_not_duplicated(blender, registered, tmp_path):
+    floor, box = floor_and_box(blender, tmp_path)
+    new_job(blender).run()
+    folder = tmp_path / OUT
+    doc = manifest.read_manifest(folder)
+    legacy = [{k: v for k, v in e.items() if k != "blend"} for e in doc["objects"]]
+    manifest.write_manifest(folder, legacy, doc["stats"], doc["settings"], [])
+    new_job(blender, objects=[box]).run()
+    entries = manifest.read_manifest(folder)["objects"]
+    assert sorted(e["name"] for e in entries) == ["Box", "Floor"]
+    assert [e.get("blend") for e in entries if e["name"] == "Box"] == ["scene.blend"]
