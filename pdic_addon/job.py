@@ -359,6 +359,12 @@ class BakeJob:
             self.warnings.append(f"{partner.name!r} shares mesh {partner.data.name!r} with {shared.name!r} and has "
                                  f"a light map laid out in its UV map: re-baked too")
             objects.append(partner)
+        meshes = {o.data for o in objects}
+        for other in bpy.data.objects:
+            if other.type == "MESH" and other.data in meshes and other not in objects and writeback.owned_images(other):
+                self.warnings.append(f"{other.name!r} shares mesh {other.data.name!r} with this bake but cannot be "
+                                     f"re-baked here ({_skip_reason(self.view_layer, other)}): its light map no "
+                                     f"longer matches the new UV layout; bake or Clear it")
         editing = [o.name for o in objects if o.mode == "EDIT" or o.data.is_editmode]
         if editing:
             raise BakeError(f"leave Edit Mode before baking (editing {', '.join(map(repr, editing))})")

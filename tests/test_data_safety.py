@@ -357,3 +357,16 @@ def test_manifest_entries_from_before_blend_keys_are_replaced_not_duplicated(ble
     entries = manifest.read_manifest(folder)["objects"]
     assert sorted(e["name"] for e in entries) == ["Box", "Floor"]
     assert [e.get("blend") for e in entries if e["name"] == "Box"] == ["scene.blend"]
+
+
+def test_linked_duplicate_that_cannot_be_rebaked_is_warned_about(blender, registered, tmp_path):
+    mesh_object(blender, "Floor", "plane", (0, 0, 0), material(blender, "FloorMat"))
+    a = mesh_object(blender, "BallA", "cube", (1.5, 0, 0.5), material(blender, "BallMat"))
+    b = mesh_object(blender, "BallB", mesh=a.data, location=(-1.5, 0, 0.5))
+    lamp(blender)
+    save(blender, tmp_path)
+    new_job(blender).run()
+    b.pdic.bake = False
+    report = new_job(blender, objects=[a]).run()
+    assert [e["name"] for e in report.objects] == ["BallA"]
+    assert any("'BallB'" in w and "Bake Light Map off" in w and "no longer matches" in w for w in report.warnings)
