@@ -61,6 +61,16 @@ def floor_and_box(bpy, tmp_path):
     return floor, box
 
 
+def linked_duplicates(bpy, tmp_path):
+    """A floor and two cubes BallA, BallB sharing one mesh, lit and saved; returns the cubes."""
+    mesh_object(bpy, "Floor", "plane", (0, 0, 0), material(bpy, "FloorMat"))
+    a = mesh_object(bpy, "BallA", "cube", (1.5, 0, 0.5), material(bpy, "BallMat"))
+    b = mesh_object(bpy, "BallB", mesh=a.data, location=(-1.5, 0, 0.5))
+    lamp(bpy)
+    save(bpy, tmp_path)
+    return a, b
+
+
 def new_job(bpy, settings=None, **kwargs):
     return job_module.BakeJob(bpy.context, to_settings(bpy.context.scene.pdic, **(settings or {})), **kwargs)
 
@@ -236,11 +246,7 @@ def test_bake_too_big_for_memory_is_refused_with_the_estimate(blender, registere
 
 # --------------------------------------------------------------------------- 17. shared meshes
 def test_bake_selected_on_one_linked_duplicate_rebakes_the_other_too(blender, registered, tmp_path):
-    mesh_object(blender, "Floor", "plane", (0, 0, 0), material(blender, "FloorMat"))
-    a = mesh_object(blender, "BallA", "cube", (1.5, 0, 0.5), material(blender, "BallMat"))
-    b = mesh_object(blender, "BallB", mesh=a.data, location=(-1.5, 0, 0.5))
-    lamp(blender)
-    save(blender, tmp_path)
+    a, b = linked_duplicates(blender, tmp_path)
     assert blender.ops.pdic.bake() == {"FINISHED"}
     old_b = pixels(writeback.owned_images(b)[0])
     blender.context.scene.pdic.default_resolution = 2 * RES  # a new layout for the shared mesh
@@ -360,11 +366,7 @@ def test_manifest_entries_from_before_blend_keys_are_replaced_not_duplicated(ble
 
 
 def test_linked_duplicate_that_cannot_be_rebaked_is_warned_about(blender, registered, tmp_path):
-    mesh_object(blender, "Floor", "plane", (0, 0, 0), material(blender, "FloorMat"))
-    a = mesh_object(blender, "BallA", "cube", (1.5, 0, 0.5), material(blender, "BallMat"))
-    b = mesh_object(blender, "BallB", mesh=a.data, location=(-1.5, 0, 0.5))
-    lamp(blender)
-    save(blender, tmp_path)
+    a, b = linked_duplicates(blender, tmp_path)
     new_job(blender).run()
     b.pdic.bake = False
     report = new_job(blender, objects=[a]).run()
