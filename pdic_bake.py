@@ -9,26 +9,33 @@ With the bpy wheel (plain Python)::
     .venv/bin/python pdic_bake.py --blend scene.blend --output maps/ --preview-png look.png
 
 Bakes the scene's light maps (all bakeable meshes, or ``--objects``), writes
-``PDIC_<object>.exr`` and ``pdic_manifest.json`` into the output folder and
+``<blend>.PDIC_<object>.exr`` and ``pdic_manifest.json`` into the output folder and
 prints per-stage times, texel counts and output paths. The .blend on disk is
 never modified; ``--save-blend PATH`` saves the baked scene (UV maps, images,
-material copies) as a new file. On error the message names the culprit and
-the exit code is 1 (2 for bad arguments).
+material copies) as a new file, never the input. On error the message names
+the culprit and the exit code is 1 (2 for bad arguments); Ctrl+C cancels the
+bake, leaves every output as it was and exits with 130.
 """
 from __future__ import annotations
 
 import argparse
+import math
 import os
+import signal
 import sys
 import time
 from dataclasses import replace
 
 INSIDE_BLENDER = "bpy" in sys.modules  # the Blender binary imports bpy before running scripts
-EXIT_ERROR, EXIT_USAGE = 1, 2
+EXIT_ERROR, EXIT_USAGE, EXIT_INTERRUPTED = 1, 2, 130
 
 
 class ScriptError(Exception):
     """An error reported as ``pdic_bake: error: ...`` with exit code 1."""
+
+
+class UsageError(ScriptError):
+    """Arguments that cannot work together (found after loading the .blend): exit code 2."""
 
 
 def script_args(argv: list[str]) -> list[str]:
@@ -62,8 +69,14 @@ def parse_args(args: list[str]) -> argparse.Namespace:
     ns = p.parse_args(args)
     if ns.resolution is not None and ns.resolution < 8:
         p.error(f"--resolution {ns.resolution}: must be at least 8")
-    if ns.texel_density is not None and not ns.texel_density > 0:
-        p.error(f"--texel-density {ns.texel_density}: must be positive")
+    if ns.texel_density is not None and not (ns.texel_density > 0 and math.isfinite(ns.texel_density)):
+        p.error(f"--texel-density {ns.texel_density}: must be a positive finite number of texels per unit")
+    for option, value, least in (("--photons", ns.photons, 0), ("--seed", ns.seed, 0), ("--threads", ns.threads, 0),
+                                 ("--preview-width", ns.preview_width, 8)):
+        if value is not None and value < least:
+            p.error(f"{option} {value}: must be at least {least}")
+    if not math.isfinite(ns.exposure):
+        p.error(f"--exposure {ns.exposure}: must be finite")
     if ns.passes is not None:
         passes = {s.strip().lower() for s in ns.passes.split(",") if s.strip()}
         if not passes or passes - {"direct", "indirect"}:
@@ -152,7 +165,7 @@ def preview_camera(bpy, pdic, scene_core):
     Camera = sub(pdic, "core.camera_render").Camera
     cam = bpy.context.scene.camera
     if cam is None or cam.type != "CAMERA":
-        raise ScriptError("--preview-png needs a scene camera (Scene > Camera is empty)")
+        raise UsageError("--preview-png needs a scene camera (Scene > Camera is empty); nothing was baked")
     frame = np.array([tuple(v) for v in cam.data.view_frame(scene=bpy.context.scene)])
     m = np.array(cam.matrix_world, np.float64)
     rotation = m[:3, :3] / np.linalg.norm(m[:3, :3], axis=0)
@@ -163,6 +176,8 @@ def preview_camera(bpy, pdic, scene_core):
         half = half * scale[:2]
     else:
         half = half / np.abs(frame[0, 2])
+    if scene_core is None:  # only checking that there is a camera
+        return None, 0.0
     r = bpy.context.scene.render
     aspect = (r.resolution_y * r.pixel_aspect_y) / max(r.resolution_x * r.pixel_aspect_x, 1)
     return Camera(m[:3, 3] - scene_core.origin_world, rotation, float(half[0]), float(half[1]), ortho), aspect
@@ -177,7 +192,10 @@ def main(argv: list[str]) -> int:
         return bake(args)
     except ScriptError as e:
         print(f"pdic_bake: error: {e}", file=sys.stderr)
-        return EXIT_ERROR
+        return EXIT_USAGE if isinstance(e, UsageError) else EXIT_ERROR
+    except KeyboardInterrupt:  # a second Ctrl+C, or one outside the bake: the job has rolled back
+        print("pdic_bake: interrupted; outputs left as they were", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except Exception as e:  # a bug: the job rolled back; the .blend on disk was never written
         import traceback
 
@@ -186,57 +204,106 @@ def main(argv: list[str]) -> int:
         return EXIT_ERROR
 
 
+def check_save_path(bpy, args) -> None:
+    """--save-blend must not be the .blend being baked (by any name: symlink, relative path, hard link)."""
+    if not args.save_blend:
+        return
+    target = os.path.realpath(os.path.abspath(os.path.expanduser(args.save_blend)))
+    source = bpy.data.filepath and os.path.realpath(bpy.data.filepath)
+    same = bool(source) and (target == source or (os.path.exists(target) and os.path.samefile(target, source)))
+    if same:
+        raise UsageError(f"--save-blend {args.save_blend!r} is the .blend being baked ({bpy.data.filepath}); "
+                          f"the input is never overwritten: save to another path")
+    if os.path.isdir(target):
+        raise UsageError(f"--save-blend {args.save_blend!r} is a folder; give a .blend file path")
+
+
+def chosen_objects(bpy, args):
+    if not args.objects:
+        return None
+    missing = [n for n in args.objects if n not in bpy.data.objects]
+    if missing:
+        raise ScriptError(f"no object named {', '.join(map(repr, missing))} in {bpy.data.filepath or 'the scene'}")
+    return [bpy.data.objects[n] for n in args.objects]
+
+
+def cancel_on_sigint(progress):
+    """Ctrl+C cancels the bake (it stops at its next progress check and rolls back); a second one
+    interrupts at once. Importing bpy replaces Python's SIGINT handler: this puts one back."""
+
+    def handler(signum, frame):
+        if progress.cancel_requested.is_set():
+            raise KeyboardInterrupt
+        print("pdic_bake: cancelling (Ctrl+C again to stop at once)...", file=sys.stderr, flush=True)
+        progress.cancel()
+
+    signal.signal(signal.SIGINT, handler)
+
+
 def bake(args) -> int:
     import bpy
 
     pdic = load_package()
     open_blend(bpy, args.blend)
-    Progress = sub(pdic, "core.executor").Progress
-    SceneError = sub(pdic, "core.scene").SceneError
+    executor = sub(pdic, "core.executor")
     job_module = sub(pdic, "pdic_addon.job")
-    BakeError, BakeJob = job_module.BakeError, job_module.BakeJob
+    progress = executor.Progress(stage_printer())
+    cancel_on_sigint(progress)
 
     if not hasattr(bpy.types.Scene, "pdic"):
         sub(pdic, "pdic_addon").register()
     scene = bpy.context.scene
     props = scene.pdic
     settings = build_settings(pdic, props, args)
-    objects = None
-    if args.objects:
-        missing = [n for n in args.objects if n not in bpy.data.objects]
-        if missing:
-            raise ScriptError(f"no object named {', '.join(map(repr, missing))} in {bpy.data.filepath or 'the scene'}")
-        objects = [bpy.data.objects[n] for n in args.objects]
+    objects = chosen_objects(bpy, args)
+    check_save_path(bpy, args)
+    if args.preview_png:  # before anything is written
+        preview_camera(bpy, pdic, None)
     folder = output_folder(bpy, props, args)
     print(f"pdic_bake: {bpy.data.filepath or '(unsaved scene)'}: quality {settings.quality}, "
           f"{settings.photons} photons, seed {settings.seed}, passes "
           f"{'+'.join(p for p in ('direct', 'indirect') if getattr(settings, p))}")
 
-    last_stage = [None, time.perf_counter()]
-
-    def on_progress(stage, fraction, eta):
-        if stage != last_stage[0]:
-            last_stage[0] = stage
-            print(f"  .. {stage}", flush=True)
-
-    job = BakeJob(bpy.context, settings, objects=objects, output_folder=folder,
-                  image_format=args.format or props.image_format, atlas_size=args.atlas_size)
+    job = job_module.BakeJob(bpy.context, settings, objects=objects, output_folder=folder,
+                             image_format=args.format or props.image_format, atlas_size=args.atlas_size)
     start = time.perf_counter()
     try:
-        job.prepare()
-        print(f"  prepared {len(job.objects)} object(s) in {time.perf_counter() - start:.2f} s")
-        try:
-            job.compute(Progress(on_progress))
-        except BaseException as e:
-            job.rollback()
-            if isinstance(e, (SceneError, ValueError)):
-                raise BakeError(str(e)) from e
-            raise
-        report = job.finish()
-    except (BakeError, SceneError) as e:
+        report = job_module.JobRunner(job, progress).run()
+    except executor.Cancelled:
+        print("pdic_bake: cancelled; outputs left as they were", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except (job_module.BakeError, sub(pdic, "core.scene").SceneError) as e:
         raise ScriptError(str(e)) from e
-    total = time.perf_counter() - start
+    print_report(report, time.perf_counter() - start)
+    if args.preview_png:
+        write_preview(bpy, pdic, job, args)
+    if args.export_glb:
+        try:
+            print(f"glb: {sub(pdic, 'pdic_addon.gltf_export').export_glb(bpy.context, os.path.abspath(args.export_glb))}")
+        except ValueError as e:
+            raise ScriptError(str(e)) from e
+    if args.save_blend:
+        path = os.path.abspath(args.save_blend)
+        try:
+            bpy.ops.wm.save_as_mainfile(filepath=path, copy=True)
+        except RuntimeError as e:
+            raise ScriptError(f"cannot save {path!r}: {e}") from e
+        print(f"saved: {path}")
+    return 0
 
+
+def stage_printer():
+    last = [None]
+
+    def on_progress(stage, fraction, eta):
+        if stage != last[0]:
+            last[0] = stage
+            print(f"  .. {stage}", flush=True)
+
+    return on_progress
+
+
+def print_report(report, total: float) -> None:
     print("stage times (s):")
     for stage, seconds in report.stats.get("seconds", {}).items():
         print(f"  {stage:<24s} {seconds:8.3f}")
@@ -250,34 +317,20 @@ def bake(args) -> int:
     if report.manifest_path is not None:
         print(f"manifest: {report.manifest_path}")
 
-    if args.preview_png:
-        preview = sub(pdic, "core.camera_render")
-        start = time.perf_counter()
-        camera, aspect = preview_camera(bpy, pdic, job.extraction.scene)
-        width = max(int(args.preview_width), 8)
-        height = max(int(round(width * aspect)), 8)
-        radiance = preview.render_preview(job.extraction.scene, job.result.lightmaps, camera, width, height)
-        path = os.path.abspath(args.preview_png)
-        try:
-            preview.write_png(path, preview.tone_map(radiance, args.exposure))
-        except OSError as e:
-            raise ScriptError(f"cannot write preview {path!r}: {e.strerror}") from e
-        print(f"preview: {path} ({width}x{height}, {time.perf_counter() - start:.2f} s)")
 
-    if args.export_glb:
-        try:
-            print(f"glb: {sub(pdic, 'pdic_addon.gltf_export').export_glb(bpy.context, os.path.abspath(args.export_glb))}")
-        except ValueError as e:
-            raise ScriptError(str(e)) from e
-
-    if args.save_blend:
-        path = os.path.abspath(args.save_blend)
-        try:
-            bpy.ops.wm.save_as_mainfile(filepath=path, copy=True)
-        except RuntimeError as e:
-            raise ScriptError(f"cannot save {path!r}: {e}") from e
-        print(f"saved: {path}")
-    return 0
+def write_preview(bpy, pdic, job, args) -> None:
+    preview = sub(pdic, "core.camera_render")
+    start = time.perf_counter()
+    camera, aspect = preview_camera(bpy, pdic, job.extraction.scene)
+    width = max(int(args.preview_width), 8)
+    height = max(int(round(width * aspect)), 8)
+    radiance = preview.render_preview(job.extraction.scene, job.result.lightmaps, camera, width, height)
+    path = os.path.abspath(args.preview_png)
+    try:
+        preview.write_png(path, preview.tone_map(radiance, args.exposure))
+    except OSError as e:
+        raise ScriptError(f"cannot write preview {path!r}: {e.strerror}") from e
+    print(f"preview: {path} ({width}x{height}, {time.perf_counter() - start:.2f} s)")
 
 
 if __name__ == "__main__":

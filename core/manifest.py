@@ -28,6 +28,9 @@ Schema (``schema_version`` 1)
     ``format`` : str, ``"OPEN_EXR"``; ``color_depth`` : str, ``"16"`` (half) or ``"32"`` (float).
     ``color_space`` : str, ``"Non-Color"`` (linear values, no transform).
     ``channels`` : str, ``"RGBA"``: linear RGB irradiance/pi, A = texel coverage in [0, 1].
+    ``blend`` : str, file name of the .blend the object belongs to (``""`` if unsaved); a
+        folder may hold the maps of several .blend files, and a partial bake keeps the
+        entries of the objects it did not re-bake.
     further keys (sorted) as the caller supplies them, e.g. ``texels`` (int,
     covered texels), ``charts`` (int), ``utilization`` (float, 0..1 of the square).
 ``settings`` : dict
@@ -50,13 +53,14 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
+
+from . import atomic
 
 SCHEMA_VERSION = 1
 FILENAME = "pdic_manifest.json"
 UNITS = "irradiance/pi"
-OBJECT_KEYS = ("name", "image", "image_name", "uv_map", "width", "height",
+OBJECT_KEYS = ("name", "blend", "image", "image_name", "uv_map", "width", "height",
                "format", "color_depth", "color_space", "channels")
 REQUIRED_OBJECT_KEYS = ("name", "image", "uv_map", "width", "height")
 
@@ -132,16 +136,30 @@ def write_manifest(path, objects: list, stats: dict, settings: dict, warnings: l
         path = path / FILENAME
     document = build_manifest(objects, stats, settings, warnings)
     text = json.dumps(document, indent=2, allow_nan=False) + "\n"
-    fd, tmp = tempfile.mkstemp(prefix=".pdic_manifest-", suffix=".json", dir=path.parent)
+    return atomic.write_text_atomic(path, text)
+
+
+def merge_objects(previous: list, baked: list, still_in_use) -> list:
+    """The manifest's object list after a partial bake: ``baked`` plus the previous entries still in use.
+
+    previous : the entries of the manifest already in the folder (may be empty).
+    baked : this bake's entries; they replace previous entries with the same (``blend``, ``name``).
+    still_in_use : ``entry -> bool``, True for a previous entry whose light map is still used
+        (its object exists and was not re-baked, or it belongs to another .blend).
+    Previous entries keep their order, then the new ones follow.
+    """
+    replaced = {(e.get("blend", ""), e["name"]) for e in baked}
+    kept = [e for e in previous if isinstance(e, dict) and "name" in e
+            and (e.get("blend", ""), e["name"]) not in replaced and still_in_use(e)]
+    return kept + list(baked)
+
+
+def read_objects(path) -> list:
+    """The ``objects`` of the manifest at ``path`` (folder or file), [] if there is none or it is unreadable."""
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+        return list(read_manifest(path).get("objects", []))
+    except (OSError, ValueError, AttributeError):
+        return []
 
 
 def read_manifest(path) -> dict:

@@ -1,11 +1,20 @@
-"""A bake as a job in three steps, so the UI never blocks and a failure leaves no trace.
+"""A bake as a job of named steps, so the UI never blocks and a failure leaves no trace.
 
-1. :meth:`BakeJob.prepare` (main thread, bpy): validate, choose objects and
-   resolutions, unwrap each target mesh into the UV map ``PDIC_Lightmap``,
-   evaluate the depsgraph and extract the core scene.
-2. :meth:`BakeJob.compute` (any thread, pure core): ``core.pipeline.bake``.
-3. :meth:`BakeJob.finish` (main thread, bpy): write images, the manifest and
-   the material copies.
+=========  ===========  ========================================================
+step       thread       what
+=========  ===========  ========================================================
+choose     main (bpy)   validate; choose objects, output folder, resolutions;
+                        estimate memory; read each target mesh's triangles
+unwrap     worker       unwrap each mesh (pure core; progress, cancel)
+extract    main (bpy)   write the UV maps ``PDIC_Lightmap``; extract the core scene
+compute    worker       ``core.pipeline.bake`` (pure core; progress, cancel)
+finish     main (bpy)   write images, manifest, records; swap in the material copies
+=========  ===========  ========================================================
+
+:class:`JobRunner` runs the steps: all on one thread (the headless script, a
+script's ``execute``) or stepwise from the modal operator's timer with the
+worker steps on a thread. :meth:`BakeJob.prepare` (choose + unwrap + extract),
+:meth:`compute`, :meth:`finish` and :meth:`run` remain for scripts and tests.
 
 Every change to the file or the output folder is recorded in a
 :class:`Transaction`; :meth:`BakeJob.rollback` undoes them in reverse order,
@@ -13,7 +22,10 @@ so an error or a cancel at any point leaves the .blend as it was.
 """
 from __future__ import annotations
 
+import inspect
 import json
+import os
+import threading
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -24,10 +36,10 @@ import numpy as np
 from ..core import bake_cache
 from ..core import manifest as core_manifest
 from ..core import unwrap
-from ..core.executor import Progress
+from ..core.executor import Cancelled, Progress
 from ..core.scene import SceneError
 from ..core.settings import BakeSettings
-from . import atlas_bake, overlay, preferences, uvmaps, writeback
+from . import overlay, preferences, uvmaps, writeback
 from .extract import extract_scene
 
 
@@ -60,13 +72,17 @@ class Transaction:
         return errors
 
     def commit(self) -> None:
-        """Keep every change; run the commit hooks (e.g. delete file backups)."""
+        """Keep every change; run the commit hooks (delete file backups and replaced datablocks).
+
+        A failing hook leaves something stale behind (a backup file, a renamed-aside
+        datablock) but never undoes the bake, so it is ignored.
+        """
         entries, self._entries = self._entries, []
         for _, _, commit in entries:
             if commit is not None:
                 try:
                     commit()
-                except OSError:
+                except Exception:
                     pass
 
 
@@ -78,10 +94,13 @@ def default_cache_dir() -> Path:
 
 
 def records_file_for(plan: writeback.OutputPlan, scene_name: str) -> Path:
-    """Where a bake's irradiance records go: next to the manifest, or (images packed
-    into an unsaved .blend) ``records/<scene>.npz`` in the cache folder."""
+    """Where a bake's irradiance records go: next to the manifest (one file per .blend and
+    scene, ``<blend>.pdic_records.<scene>.npz``), or (images packed into an unsaved .blend)
+    ``records/<scene>.npz`` in the cache folder."""
     if not plan.pack:
-        return plan.directory / overlay.RECORDS_FILENAME
+        prefix = writeback.blend_key()
+        stem = Path(overlay.RECORDS_FILENAME).stem
+        return plan.directory / f"{prefix + '.' if prefix else ''}{stem}.{writeback.file_key(scene_name)}.npz"
     folder = preferences.cache_dir(sub="records")
     folder.mkdir(parents=True, exist_ok=True)
     return folder / (bpy.path.clean_name(scene_name) + ".npz")
@@ -107,23 +126,94 @@ def choose_objects(view_layer, candidates) -> tuple[list, list[str], list[str]]:
     """Split ``candidates`` into (bakeable objects, warnings, reasons for skipping)."""
     chosen, warnings, reasons = [], [], []
     for obj in candidates:
-        settings = _object_settings(obj)
-        if obj.type != "MESH":
-            reasons.append(f"{obj.name!r} is not a mesh ({obj.type})")
-        elif settings is not None and not settings.bake:
-            reasons.append(f"{obj.name!r} has Bake Light Map off")
-        elif obj.hide_render:
-            reasons.append(f"{obj.name!r} is hidden from render")
-        elif obj.library is not None or obj.data.library is not None:
-            lib = (obj.library or obj.data.library).filepath
-            msg = f"{obj.name!r} is linked from library {lib!r}: its mesh cannot take a light-map UV map; skipped"
-            warnings.append(msg)
-            reasons.append(msg)
-        elif len(obj.data.polygons) == 0:
-            reasons.append(f"{obj.name!r} has no faces")
-        else:
+        reason = _skip_reason(view_layer, obj)
+        if reason is None:
             chosen.append(obj)
+            continue
+        reasons.append(reason)
+        if "library" in reason:
+            warnings.append(reason)
     return chosen, warnings, reasons
+
+
+def _skip_reason(view_layer, obj) -> str | None:
+    """Why ``obj`` cannot get a light map in this view layer, or None."""
+    settings = _object_settings(obj)
+    if obj.name not in view_layer.objects or view_layer.objects[obj.name] != obj:
+        scenes = ", ".join(repr(s.name) for s in obj.users_scene) or "no scene"
+        return f"{obj.name!r} is not in view layer {view_layer.name!r} of this scene (it is in {scenes})"
+    if obj.type != "MESH":
+        return f"{obj.name!r} is not a mesh ({obj.type})"
+    if settings is not None and not settings.bake:
+        return f"{obj.name!r} has Bake Light Map off"
+    if obj.hide_render:
+        return f"{obj.name!r} is hidden from render"
+    if obj.library is not None or obj.data.library is not None:
+        lib = (obj.library or obj.data.library).filepath
+        return f"{obj.name!r} is linked from library {lib!r}: its mesh cannot take a light-map UV map; skipped"
+    if len(obj.data.polygons) == 0:
+        return f"{obj.name!r} has no faces"
+    return None
+
+
+def baked_mesh_partners(view_layer, objects) -> list:
+    """Objects sharing a mesh with ``objects`` that already have a light map laid out in its UV map.
+
+    Re-unwrapping a shared mesh for some of its users would misalign the others' maps,
+    so those are re-baked too.
+    """
+    meshes = {o.data for o in objects}
+    chosen = set(objects)
+    return [o for o in view_layer.objects if o is not None and o.type == "MESH" and o.data in meshes and o not in chosen
+            and writeback.owned_images(o) and _skip_reason(view_layer, o) is None]
+
+
+BYTES_PER_TEXEL_SAMPLE = 150
+"""Texel sample in flight: position, normal, uv, indices (80 B, core/texels.py) plus direct and
+indirect irradiance (2 x 24 B) and their splats; per light-map texel add 64 B of images."""
+STORED_PER_EMITTED = 3.5
+"""Stored photons per emitted photon, upper end: a closed albedo-0.7 box stores 3.2 (tests/test_photon_memory.py)."""
+MEMORY_FRACTION = 0.8
+"""A bake may plan to use at most this fraction of the machine's physical memory."""
+
+
+def photon_bytes(settings: BakeSettings) -> float:
+    """Bytes of the stored photons (pass 1) a bake is expected to hold at most."""
+    from ..core.photons import PhotonMap
+
+    stored = settings.photons * min(1 + settings.max_bounces, STORED_PER_EMITTED) if settings.indirect else 0
+    return stored * PhotonMap.BYTES_PER_PHOTON
+
+
+def memory_estimate(settings: BakeSettings, texels: int) -> int:
+    """Bytes a bake's largest arrays need: stored photons and texel samples (plus 300 MB of working set)."""
+    samples = texels * settings.texel_samples ** 2
+    return int(photon_bytes(settings) + samples * BYTES_PER_TEXEL_SAMPLE + texels * 64 + 300e6)
+
+
+def physical_memory() -> int:
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # not POSIX: assume a modest machine
+        return 8 << 30
+
+
+def _gib(n: float) -> str:
+    return f"{n / (1 << 30):.3g} GiB"
+
+
+def check_memory(settings: BakeSettings, texels: int, largest: str) -> None:
+    """Refuse (BakeError naming the setting) a bake whose arrays would not fit in memory."""
+    need, have = memory_estimate(settings, texels), physical_memory()
+    if need <= MEMORY_FRACTION * have:
+        return
+    if photon_bytes(settings) >= need / 2:
+        culprit = f"the Photons setting ({settings.photons:,} photons)"
+    else:
+        culprit = (f"the light-map resolution ({texels:,} texels in all, largest {largest}; lower Texel Density "
+                   f"or Resolution)")
+    raise BakeError(f"{culprit} needs about {_gib(need)} of memory; this machine has {_gib(have)}: "
+                    f"lower it to stay under {_gib(MEMORY_FRACTION * have)}")
 
 
 def _json_default(value):
@@ -145,8 +235,15 @@ class BakeReport:
 
 
 # --------------------------------------------------------------------------- the job
+MAIN, WORKER = "main", "worker"
+USER_ERRORS = (SceneError, uvmaps.UVMapError, writeback.WritebackError, ValueError, OSError)
+"""Failures caused by the scene or the environment: reported as BakeError with their message."""
+HALF_MAX = 65504.0
+"""Largest finite half-float value: EXR_HALF light maps clamp brighter texels to it."""
+
+
 class BakeJob:
-    """One bake of a scene's objects.
+    """One bake of a scene's objects, as the named steps of :attr:`STEPS`.
 
     Parameters
     ----------
@@ -157,13 +254,12 @@ class BakeJob:
     output_folder : Blender path; default ``scene.pdic.output_folder`` or ``//pdic_lightmaps/``.
     image_format : "EXR_HALF" or "EXR_FLOAT"; default from ``scene.pdic``.
     cache_dir : unwrap cache folder (None: :func:`default_cache_dir`, from the add-on preferences).
-    atlas_size : > 0 packs all objects into shared atlases of this size (:mod:`.atlas_bake`); 0 = a map
-        each; default ``scene.pdic.atlas_size``.
     """
 
+    STEPS = (("choose", MAIN), ("unwrap", WORKER), ("extract", MAIN), ("compute", WORKER), ("finish", MAIN))
+
     def __init__(self, context, settings: BakeSettings, objects=None, selected_only: bool = False,
-                 output_folder: str | None = None, image_format: str | None = None, cache_dir=None,
-                 atlas_size: int | None = None):
+                 output_folder: str | None = None, image_format: str | None = None, cache_dir=None):
         self.scene = context.scene
         self.view_layer = context.view_layer
         self.context = context
@@ -174,7 +270,7 @@ class BakeJob:
         self.explicit_objects = list(objects) if objects is not None else None
         self.selected_only = selected_only
         self.cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-        # Resolved here, on the main thread: compute() runs in a worker and must not touch bpy.
+        # Resolved here, on the main thread: the worker steps must not touch bpy.
         self.bake_cache_dir = preferences.cache_dir(sub="bake_cache")
         self.txn = Transaction()
         self.warnings: list[str] = []
@@ -183,55 +279,103 @@ class BakeJob:
         self.objects: list = []
         self.resolutions: dict[str, tuple[int, int]] = {}
         self.plan: writeback.OutputPlan | None = None
+        self.meshes: dict = {}          # mesh name -> bpy mesh (main thread only)
+        self.mesh_users: dict = {}      # mesh name -> names of the objects baked with it
+        self.triangles: dict = {}       # mesh name -> uvmaps.MeshTriangles
+        self.scales: dict = {}          # mesh name -> (3,) world scale of its first user
+        self.uv_loops: dict = {}        # mesh name -> (loop_count, 2) light-map UVs, from the unwrap step
         self.extraction = None
         self.result = None
         self.report: BakeReport | None = None
-        self.atlas_size = int(atlas_size if atlas_size is not None else getattr(props, "atlas_size", 0))
-        self.atlas_layout = None
 
-    # ----------------------------------------------------------------- 1. prepare
-    def prepare(self) -> None:
-        """Main thread. Raises BakeError (file unchanged) if the bake cannot start."""
+    # ----------------------------------------------------------------- errors and the step wrapper
+    @staticmethod
+    def user_error(error: BaseException) -> BaseException:
+        """The exception to show for ``error``: BakeError for scene/environment faults, else itself."""
+        if isinstance(error, (BakeError, Cancelled)) or not isinstance(error, USER_ERRORS):
+            return error
+        return BakeError(str(error))
+
+    def run_step(self, name: str, progress: Progress | None = None) -> None:
+        """Run one step; on any failure roll back (main thread only) and raise :meth:`user_error`."""
         try:
-            self._prepare()
+            self._call(name, progress)
         except BaseException as e:
             self.rollback()
-            if isinstance(e, (SceneError, uvmaps.UVMapError, writeback.WritebackError, ValueError)):
-                raise BakeError(str(e)) from e
-            raise
+            converted = self.user_error(e)
+            if converted is e:
+                raise
+            raise converted from e
 
-    def _prepare(self):
+    def _call(self, name: str, progress: Progress | None) -> None:
         start = time.perf_counter()
+        step = getattr(self, "_" + name)
+        if dict(self.STEPS)[name] == WORKER:  # worker steps report progress and check for cancel
+            step(progress)
+        else:
+            step()
+        self.timings[name] = time.perf_counter() - start
+
+    # ----------------------------------------------------------------- step 1: choose (main)
+    def _choose(self) -> None:
+        objects = self._bakeable(self._candidates())
+        self.plan = writeback.plan_output(self.output_folder)
+        if self.plan.pack:
+            self.warnings.append(self.plan.message)
+        self._read_meshes(objects)
+        self.objects = [o for o in objects if o.data.name in self.meshes]
+        if not self.objects:
+            raise BakeError("nothing to bake: no selected mesh has a triangle with area")
+        for mesh_name in self.meshes:
+            self._choose_resolution(mesh_name)
+        largest = max(self.resolutions, key=lambda n: self.resolutions[n][0])
+        check_memory(self.settings, self.texel_count, f"{largest!r} at {self.resolutions[largest][0]}^2")
+        if self.settings.indirect and self.settings.photons == 0:
+            self.warnings.append("Photons is 0: the light maps hold direct light only (no indirect light)")
+        # Joined objects (Ctrl+J) carry PDIC copies as mesh materials: give the user's back first.
+        writeback.release_mesh_copies(self.txn)
+
+    def _candidates(self) -> list:
         if self.explicit_objects is not None:
-            candidates = self.explicit_objects
-        elif self.selected_only:
-            candidates = [o for o in self.view_layer.objects if o.select_get(view_layer=self.view_layer)]
+            return self.explicit_objects
+        if self.selected_only:
+            candidates = [o for o in self.view_layer.objects
+                          if o is not None and o.select_get(view_layer=self.view_layer)]
             if not candidates:
                 raise BakeError("nothing to bake: no objects are selected (select meshes or bake all)")
-        else:
-            candidates = list(self.view_layer.objects)
-            if not candidates:
-                raise BakeError("nothing to bake: the view layer has no objects")
+            return candidates
+        candidates = [o for o in self.view_layer.objects if o is not None]  # None: just deleted
+        if not candidates:
+            raise BakeError("nothing to bake: the view layer has no objects")
+        return candidates
+
+    def _bakeable(self, candidates) -> list:
         objects, warnings, reasons = choose_objects(self.view_layer, candidates)
         self.warnings += warnings
         if not objects:
             raise BakeError("nothing to bake: " + "; ".join(reasons[:5]) + (" ..." if len(reasons) > 5 else ""))
+        for partner in baked_mesh_partners(self.view_layer, objects):
+            shared = next(o for o in objects if o.data == partner.data)
+            self.warnings.append(f"{partner.name!r} shares mesh {partner.data.name!r} with {shared.name!r} and has "
+                                 f"a light map laid out in its UV map: re-baked too")
+            objects.append(partner)
+        meshes = {o.data for o in objects}
+        for other in bpy.data.objects:
+            if other.type == "MESH" and other.data in meshes and other not in objects and writeback.owned_images(other):
+                self.warnings.append(f"{other.name!r} shares mesh {other.data.name!r} with this bake but cannot be "
+                                     f"re-baked here ({_skip_reason(self.view_layer, other)}): its light map no "
+                                     f"longer matches the new UV layout; bake or Clear it")
         editing = [o.name for o in objects if o.mode == "EDIT" or o.data.is_editmode]
         if editing:
             raise BakeError(f"leave Edit Mode before baking (editing {', '.join(map(repr, editing))})")
-        self.objects = objects
-        # Output folder: validated before anything changes.
-        self.plan = writeback.plan_output(self.output_folder)
-        if self.plan.pack:
-            self.warnings.append(self.plan.message)
+        return objects
 
-        # -- resolutions: per-object override, else from the world surface area
-        s = self.settings
+    def _read_meshes(self, objects) -> None:
+        """Each target mesh's triangles, once per mesh; meshes without area are left out (warned)."""
         by_mesh: dict = {}
         for obj in objects:
             by_mesh.setdefault(obj.data, []).append(obj)
-        triangles = {}
-        for mesh, users in list(by_mesh.items()):
+        for mesh, users in by_mesh.items():
             tris = uvmaps.mesh_triangles(mesh)
             if not np.isfinite(tris.positions).all():
                 bad = int((~np.isfinite(tris.positions).all(axis=1)).sum())
@@ -240,174 +384,193 @@ class BakeJob:
             if not (tris.surface_area((1.0, 1.0, 1.0)) > 0):
                 for o in users:
                     self.warnings.append(f"{o.name!r}: mesh {mesh.name!r} has no triangle with area; not baked")
-                del by_mesh[mesh]
                 continue
-            triangles[mesh] = tris
-            for obj in users:
-                override = getattr(_object_settings(obj), "resolution", 0)
-                if override > 0:
-                    res = int(override)
-                else:
-                    area = tris.surface_area(tuple(obj.matrix_world.to_scale()))
+            self.meshes[mesh.name] = mesh
+            self.mesh_users[mesh.name] = [o.name for o in users]
+            self.triangles[mesh.name] = tris
+            self.scales[mesh.name] = np.asarray(tuple(users[0].matrix_world.to_scale()), np.float64)
+
+    def _choose_resolution(self, mesh_name: str) -> None:
+        """Per-object override, else from the world surface area; one resolution per shared mesh."""
+        mesh, users = self.meshes[mesh_name], [bpy.data.objects[n] for n in self.mesh_users[mesh_name]]
+        tris, s = self.triangles[mesh_name], self.settings
+        for obj in users:
+            override = getattr(_object_settings(obj), "resolution", 0)
+            if override > 0:
+                res = int(override)
+            else:
+                area = tris.surface_area(tuple(obj.matrix_world.to_scale()))
+                try:
                     res = unwrap.choose_resolution(area, s.texel_density, s.default_resolution,
                                                    s.min_resolution, s.max_resolution)
-                self.resolutions[obj.name] = (res, res)
-            sizes = {self.resolutions[o.name][0] for o in users}
-            if len(sizes) > 1:  # one UV layout per mesh: share its resolution
-                res = max(sizes)
-                self.warnings.append(f"mesh {mesh.name!r} is shared by {', '.join(o.name for o in users)}: "
-                                     f"all get {res}x{res} light maps")
-                for o in users:
-                    self.resolutions[o.name] = (res, res)
-        objects = [o for o in objects if o.data in by_mesh]
-        if not objects:
-            raise BakeError("nothing to bake: no selected mesh has a triangle with area")
-        self.objects = objects
-        self.timings["choose"] = time.perf_counter() - start
-
-        # -- unwrap each mesh once (positions scaled like its first user in the world)
-        start = time.perf_counter()
-        if self.atlas_size:
-            self.atlas_layout = atlas_bake.unwrap_into_atlases(self, by_mesh, triangles)
-        for mesh, users in (by_mesh.items() if not self.atlas_size else ()):
-            tris = triangles[mesh]
-            res = self.resolutions[users[0].name][0]
-            scale = np.asarray(tuple(users[0].matrix_world.to_scale()), np.float64)
-            try:
-                result = unwrap.unwrap(tris.positions * scale, tris.triangles, res, s.padding,
-                                       cache_dir=self.cache_dir, triangle_polygon=tris.polygon,
-                                       max_resolution=max(s.max_resolution, res))
-                uv_loop, conflicts = unwrap.loop_uvs(result.uv, tris.loops, tris.loop_count)
-            except (ValueError, RuntimeError) as e:  # bad geometry, or xatlas failing to pack
-                raise BakeError(f"cannot unwrap mesh {mesh.name!r} (object {users[0].name!r}): {e}") from e
-            self.warnings += list(result.warnings)
-            if result.resolution != res:  # the charts did not fit: the map grew until they did
-                self.warnings.append(f"mesh {mesh.name!r}: its charts do not fit {res}x{res}; light map "
-                                     f"{result.resolution}x{result.resolution} instead")
-                for o in users:
-                    self.resolutions[o.name] = (result.resolution, result.resolution)
-            if conflicts:
-                self.warnings.append(f"mesh {mesh.name!r}: {conflicts} polygon corners got split UVs")
-            uvmaps.write_lightmap_uv(mesh, uv_loop, self.txn)
+                except ValueError as e:
+                    raise BakeError(f"object {obj.name!r}: texel density {s.texel_density!r} and surface "
+                                    f"area {area!r} give no light-map resolution ({e})") from e
+            self.resolutions[obj.name] = (res, res)
+        sizes = {self.resolutions[o.name][0] for o in users}
+        if len(sizes) > 1:  # one UV layout per mesh: share its resolution
+            res = max(sizes)
+            self.warnings.append(f"mesh {mesh.name!r} is shared by {', '.join(o.name for o in users)}: "
+                                 f"all get {res}x{res} light maps")
             for o in users:
-                self.unwraps[o.name] = {"charts": result.chart_count, "utilization": round(result.utilization, 4),
-                                        "unwrap_cached": result.from_cache, "resolution_requested": res}
-        self.timings["unwrap"] = time.perf_counter() - start
+                self.resolutions[o.name] = (res, res)
 
-        # -- extract the core scene from the evaluated depsgraph, seeing the user's materials
-        # (not PDIC copies: their emission is the previous bake's light)
-        start = time.perf_counter()
+    # ----------------------------------------------------------------- step 2: unwrap (worker, no bpy)
+    def _unwrap(self, progress: Progress | None = None) -> None:
+        """Unwrap each mesh once (positions scaled like its first user in the world)."""
+        progress = progress or Progress()
+        progress.begin("Unwrapping")
+        extra = _unwrap_hooks(progress)
+        for i, (mesh_name, users) in enumerate(self.mesh_users.items()):
+            tris, res = self.triangles[mesh_name], self.resolutions[users[0]][0]
+            try:
+                result = unwrap.unwrap(tris.positions * self.scales[mesh_name], tris.triangles, res,
+                                       self.settings.padding, cache_dir=self.cache_dir,
+                                       triangle_polygon=tris.polygon, **extra)
+                uv_loop, conflicts = unwrap.loop_uvs(result.uv, tris.loops, tris.loop_count)
+            except (ValueError, RuntimeError, ZeroDivisionError) as e:  # bad geometry, or xatlas failing to pack
+                raise BakeError(f"cannot unwrap mesh {mesh_name!r} (object {users[0]!r}): {e}") from e
+            if conflicts:
+                self.warnings.append(f"mesh {mesh_name!r}: {conflicts} polygon corners got split UVs")
+            self.uv_loops[mesh_name] = uv_loop
+            for name in users:
+                self.unwraps[name] = {"charts": result.chart_count, "utilization": round(result.utilization, 4),
+                                      "unwrap_cached": result.from_cache}
+            progress.update((i + 1) / len(self.meshes))
+
+    # ----------------------------------------------------------------- step 3: extract (main)
+    def _extract(self) -> None:
+        """Write the UV maps, then extract the core scene from the evaluated depsgraph, seeing the
+        user's materials (not PDIC copies: their emission is the previous bake's light)."""
+        for mesh_name, mesh in self.meshes.items():
+            uvmaps.write_lightmap_uv(mesh, self.uv_loops[mesh_name], self.txn)
         showing = [o for o in self.scene.objects if writeback.is_baked_shading(o)]
-        writeback.set_shading(showing, baked=False)
-        for obj in showing:
+        for obj in showing:  # registered first: undoing a switch that did not happen changes nothing
             self.txn.add(lambda obj=obj: writeback.set_shading([obj], baked=True), f"show baked lighting on {obj.name}")
+        writeback.set_shading(showing, baked=False)
         depsgraph = self.context.evaluated_depsgraph_get()
         depsgraph.update()
         try:
-            self.extraction = extract_scene(depsgraph, objects, uvmaps.LIGHTMAP_UV, self.resolutions)
+            self.extraction = extract_scene(depsgraph, self.objects, uvmaps.LIGHTMAP_UV, self.resolutions)
         finally:  # objects that are not re-baked show their light maps again at once
-            targets = {o.name for o in objects}
+            targets = {o.name for o in self.objects}
             writeback.set_shading([o for o in showing if o.name not in targets], baked=True)
         self.warnings += self.extraction.warnings  # extraction names degenerate triangles and dark scenes
-        if self.atlas_layout is not None:
-            self.extraction.scene = atlas_bake.window_scene(self.extraction.scene, self.atlas_layout)
-        self.timings["extract"] = time.perf_counter() - start
 
     @property
     def texel_count(self) -> int:
         return int(sum(w * h for w, h in self.resolutions.values()))
 
-    # ----------------------------------------------------------------- 2. compute
-    def compute(self, progress: Progress | None = None) -> None:
-        """Any thread; no bpy. Raises core.executor.Cancelled on cancel, SceneError on bad input."""
+    # ----------------------------------------------------------------- step 4: compute (worker, no bpy)
+    def _compute(self, progress: Progress | None = None) -> None:
         from ..core import pipeline  # imported on first bake: keeps add-on registration light
 
-        start = time.perf_counter()
         # Re-bakes of an unchanged scene reuse the photon map and cache (content-keyed, on disk
         # under the preferences' cache folder, pruned to its budget; not held in Blender's memory).
         store = bake_cache.BakeCache(self.bake_cache_dir, memory=False)
         self.result = pipeline.bake(self.extraction.scene, self.settings, progress, cache=store)
         store.prune()
-        self.warnings += store.warnings  # e.g. a full cache folder: the bake went on without it
-        self.timings["compute"] = time.perf_counter() - start
 
-    # ----------------------------------------------------------------- 3. finish
-    def finish(self) -> BakeReport:
-        """Main thread: images, manifest, material copies. Raises BakeError after rolling back."""
-        try:
-            report = self._finish()
-        except BaseException as e:
-            self.rollback()
-            if isinstance(e, (writeback.WritebackError, ValueError, KeyError, OSError)):
-                raise BakeError(str(e)) from e
-            raise
-        self.report = report
-        return report
-
-    def _finish(self) -> BakeReport:
+    # ----------------------------------------------------------------- step 5: finish (main)
+    def _finish(self) -> None:
         start = time.perf_counter()
-        plan = self.plan
-        writeback.ensure_directory(plan, self.txn)
+        writeback.ensure_directory(self.plan, self.txn)
         entries, new_outputs = [], []
-        atlases = atlas_bake.write_atlas_images(self, plan) if self.atlas_layout is not None else {}
         for name in self.extraction.target_objects:
             obj = bpy.data.objects.get(name)
             if obj is None:
                 raise BakeError(f"object {name!r} was deleted or renamed during the bake")
-            pixels = self.result.lightmaps[name]
-            rebake = bool(writeback.owned_images(name) or writeback.owned_materials(name))
-            temp = writeback.image_name(name) + ".pdic_new" if rebake else None
-            if name in atlases:
-                image, relpath, _ = atlases[name]
-            else:
-                image, relpath = writeback.write_image(name, pixels, plan, self.image_format, self.txn, name=temp)
-            copies, warnings = writeback.build_copies(obj, image, self.txn, temporary=rebake)
-            self.warnings += warnings
+            entry, image, copies = self._write_object(obj)
+            entries.append(entry)
             new_outputs.append((obj, image, copies))
-            h, w = atlases[name][2].shape[:2] if name in atlases else pixels.shape[:2]
-            entries.append(dict(
-                name=name, image=relpath, image_name=image.name.removesuffix(".pdic_new"), uv_map=uvmaps.LIGHTMAP_UV,
-                width=int(w), height=int(h), format="OPEN_EXR", color_depth=writeback.FORMATS[self.image_format],
-                color_space="Non-Color", channels="RGBA", texels=int((pixels[..., 3] > 0).sum()),
-                materials=[c.name.removesuffix(".pdic_new") for c in copies], **self.unwraps.get(name, {})))
         self.timings["write_images"] = time.perf_counter() - start
+        stats = self._stats()
+        manifest_path = self._write_manifest(entries, stats)
+        records_path = self._write_records()
+        self._remember(stats, entries, manifest_path, records_path)
+        self._swap_outputs(new_outputs)
+        self.txn.commit()
+        self.report = BakeReport(entries, list(self.warnings), stats, self.plan, manifest_path, records_path)
 
+    def _write_object(self, obj) -> tuple[dict, object, list]:
+        """One object's image file and material copies (new datablocks, not shown yet); its manifest entry."""
+        name = obj.name
+        pixels = self._storable(name, self.result.lightmaps[name])
+        rebake = bool(writeback.owned_images(obj) or writeback.owned_materials(obj))
+        temp = writeback.image_name(name) + writeback.TEMPORARY_SUFFIX if rebake else None
+        image, relpath = writeback.write_image(name, pixels, self.plan, self.image_format, self.txn, name=temp)
+        copies, warnings = writeback.build_copies(obj, image, self.txn, temporary=rebake)
+        self.warnings += warnings
+        h, w = pixels.shape[:2]
+        entry = dict(
+            name=name, blend=os.path.basename(bpy.data.filepath), image=relpath,
+            image_name=writeback.image_name(name), uv_map=uvmaps.LIGHTMAP_UV, width=int(w), height=int(h),
+            format="OPEN_EXR", color_depth=writeback.FORMATS[self.image_format], color_space="Non-Color",
+            channels="RGBA", texels=int((pixels[..., 3] > 0).sum()),
+            materials=[c.name.removesuffix(writeback.TEMPORARY_SUFFIX) for c in copies], **self.unwraps.get(name, {}))
+        return entry, image, copies
+
+    def _storable(self, name: str, pixels: np.ndarray) -> np.ndarray:
+        """``pixels`` as the image format can hold them: half floats clamp at 65504 (said in a warning)."""
+        if self.image_format != "EXR_HALF":
+            return pixels
+        rgb = pixels[..., :3]
+        over = int((rgb > HALF_MAX).sum()) if np.isfinite(rgb).all() else 0
+        if not over:
+            return pixels
+        self.warnings.append(f"{name!r}: {over} texel values exceed {HALF_MAX:g}, the largest half float, and are "
+                             f"clamped in its EXR_HALF file (brightest {float(rgb.max()):.6g}); use EXR_FLOAT")
+        clamped = pixels.copy()
+        np.minimum(clamped[..., :3], HALF_MAX, out=clamped[..., :3])
+        return clamped
+
+    def _stats(self) -> dict:
         stats = dict(self.result.stats)
         stats["seconds"] = {**{f"addon_{k}": round(v, 4) for k, v in self.timings.items()},
                             **stats.get("seconds", {})}
         stats["texels"] = self.texel_count
-        settings = asdict(self.settings)
-        manifest_path = None
-        if not plan.pack:
-            manifest_path = plan.directory / core_manifest.FILENAME
-            writeback.replace_file(manifest_path, lambda p: core_manifest.write_manifest(
-                p, entries, stats, settings, self.warnings), self.txn)
-        records_path = self._write_records(plan)
-        self._remember(stats, entries, manifest_path, records_path)
+        return stats
 
-        # -- commit: replace the previous outputs of these objects, show the new ones
-        for obj, image, copies in new_outputs:
-            writeback.remove_outputs(obj.name, keep={image, *copies})
-            writeback.assign_copies(obj, copies, self.txn)
-            if obj.name not in atlases:
-                image.name = writeback.image_name(obj.name)
-            for copy in copies:
-                copy.name = copy.name.removesuffix(".pdic_new")
-        if atlases:
-            atlas_bake.commit_atlas_images(self)
-        self.txn.commit()
-        self.timings["finish"] = time.perf_counter() - start
-        return BakeReport(entries, list(self.warnings), stats, plan, manifest_path, records_path)
+    def _write_manifest(self, entries: list, stats: dict) -> Path | None:
+        """The folder's manifest: this bake's entries plus the previous ones still in use."""
+        if self.plan.pack:
+            return None
+        folder, blend = self.plan.directory, os.path.basename(bpy.data.filepath)
+        baked = {e["name"] for e in entries}
 
-    def _write_records(self, plan) -> Path:
+        def in_use(entry) -> bool:
+            if "blend" in entry and entry["blend"] != blend:  # another .blend's map in a shared folder
+                return (folder / str(entry.get("image", ""))).is_file()
+            obj = bpy.data.objects.get(entry["name"])  # ours (or written before entries named their .blend)
+            return entry["name"] not in baked and obj is not None and bool(writeback.owned_images(obj))
+
+        objects = core_manifest.merge_objects(core_manifest.read_objects(folder), entries, in_use)
+        path = folder / core_manifest.FILENAME
+        writeback.replace_file(path, lambda p: core_manifest.write_manifest(
+            p, objects, stats, asdict(self.settings), self.warnings), self.txn)
+        return path
+
+    def _write_records(self) -> Path:
         """The cache overlay's file: records p_k, n_k, E_k, R_k (zero records without indirect light)."""
         cache = self.result.cache
         K = len(cache) if cache is not None else 0
         fields = (cache.p, cache.n, cache.E, cache.R) if K else (np.zeros((0, 3)),) * 3 + (np.zeros(0),)
-        path = records_file_for(plan, self.scene.name)
+        path = records_file_for(self.plan, self.scene.name)
         origin = self.extraction.scene.origin_world
         writeback.replace_file(path, lambda p: overlay.save_records(p, *fields, origin, self.settings.a), self.txn)
         return path
+
+    def _swap_outputs(self, new_outputs: list) -> None:
+        """Replace each object's previous outputs by the new ones and show them; every change is
+        undoable until the commit, which deletes the replaced datablocks."""
+        for obj, image, copies in new_outputs:
+            writeback.retire_outputs(obj, {image, *copies}, self.txn, self.warnings)
+            writeback.assign_copies(obj, copies, self.txn)
+            writeback.rename(image, writeback.image_name(obj.name), self.txn)
+            for copy in copies:
+                writeback.rename(copy, copy.name.removesuffix(writeback.TEMPORARY_SUFFIX), self.txn)
+        for owner in writeback.orphaned_owners():  # outputs of deleted objects
+            writeback.retire_outputs(owner, set(), self.txn, self.warnings)
 
     def _remember(self, stats: dict, entries: list, manifest_path, records_path) -> None:
         """Store the last bake's statistics and files in ``scene.pdic`` (undone on rollback)."""
@@ -428,21 +591,113 @@ class BakeJob:
         for k, v in new.items():
             setattr(props, k, v)
 
-    # ----------------------------------------------------------------- undo
-    def rollback(self) -> list[str]:
-        """Undo everything prepare()/finish() changed (safe to call more than once)."""
-        errors = self.txn.rollback()
-        return errors
+    # ----------------------------------------------------------------- the public steps
+    def prepare(self) -> None:
+        """Main thread: choose, unwrap, extract. Raises BakeError (file unchanged) if the bake cannot start."""
+        for name in ("choose", "unwrap", "extract"):
+            self.run_step(name)
 
-    # ----------------------------------------------------------------- all at once
+    def compute(self, progress: Progress | None = None) -> None:
+        """Any thread; no bpy. Raises core.executor.Cancelled on cancel, SceneError on bad input
+        (the caller rolls back, on the main thread)."""
+        self._call("compute", progress)
+
+    def finish(self) -> BakeReport:
+        """Main thread: images, manifest, material copies. Raises BakeError after rolling back."""
+        self.run_step("finish")
+        return self.report
+
+    def rollback(self) -> list[str]:
+        """Undo everything the steps changed (safe to call more than once)."""
+        return self.txn.rollback()
+
     def run(self, progress: Progress | None = None) -> BakeReport:
-        """prepare, compute, finish on this thread (background mode, scripts)."""
-        self.prepare()
+        """Every step on this thread (background mode, scripts)."""
+        return JobRunner(self, progress).run()
+
+
+def _unwrap_hooks(progress: Progress) -> dict:
+    """Cancel/progress arguments ``core.unwrap.unwrap`` accepts (it may run xatlas in a subprocess)."""
+    parameters = inspect.signature(unwrap.unwrap).parameters
+    hooks = {}
+    if "cancel" in parameters:
+        hooks["cancel"] = progress.cancel_requested.is_set
+    if "progress" in parameters:
+        hooks["progress"] = progress
+    return hooks
+
+
+# --------------------------------------------------------------------------- the runner
+class JobRunner:
+    """Runs a :class:`BakeJob`'s steps: the panel's operator and the headless script both use it.
+
+    :meth:`run` runs every step on the calling thread (it must be the main thread).
+    :meth:`advance`, called repeatedly from the main thread (a modal timer), runs the
+    main-thread steps itself and each worker step on a thread, returning True when
+    the job has finished or failed (then :attr:`error` holds the user-facing error
+    and the file is rolled back). ``progress`` reports stages and carries cancel.
+    """
+
+    def __init__(self, job: BakeJob, progress: Progress | None = None):
+        self.job = job
+        self.progress = progress or Progress()
+        self.index = 0
+        self.thread: threading.Thread | None = None
+        self.error: BaseException | None = None
+        self._worker_error: BaseException | None = None
+
+    @property
+    def done(self) -> bool:
+        return self.error is not None or self.index >= len(self.job.STEPS)
+
+    def run(self) -> BakeReport:
+        for name, _ in self.job.STEPS:
+            self.progress.check()
+            self.job.run_step(name, self.progress)
+        return self.job.report
+
+    def advance(self) -> bool:
+        """Main thread: move the job on as far as possible without blocking; True when done."""
         try:
-            self.compute(progress)
+            if self.thread is not None:
+                if self.thread.is_alive():
+                    return False
+                self.thread = None
+                if self._worker_error is not None:
+                    raise self._worker_error
+                self.index += 1
+            while self.index < len(self.job.STEPS):
+                self.progress.check()
+                name, where = self.job.STEPS[self.index]
+                if where == WORKER:
+                    self._start_worker(name)
+                    return False
+                self.job.run_step(name, self.progress)
+                self.index += 1
         except BaseException as e:
-            self.rollback()
-            if isinstance(e, (SceneError, ValueError)):
-                raise BakeError(str(e)) from e
-            raise
-        return self.finish()
+            self.job.rollback()
+            self.error = self.job.user_error(e)
+        return True
+
+    def advance_to_worker(self) -> None:
+        """Main thread: run the main-thread steps up to the first worker step; raise their error."""
+        while self.index < len(self.job.STEPS) and self.job.STEPS[self.index][1] == MAIN:
+            self.job.run_step(self.job.STEPS[self.index][0], self.progress)
+            self.index += 1
+
+    def _start_worker(self, name: str) -> None:
+        def work():
+            try:
+                self.job._call(name, self.progress)
+            except BaseException as e:  # handed to the main thread
+                self._worker_error = e
+
+        self.thread = threading.Thread(target=work, name=f"pdic-{name}", daemon=True)
+        self.thread.start()
+
+    def stop(self) -> None:
+        """Main thread: cancel, wait for the worker, undo everything (before undo or loading a file)."""
+        self.progress.cancel()
+        if self.thread is not None:
+            self.thread.join()
+        self.job.rollback()

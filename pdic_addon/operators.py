@@ -14,7 +14,6 @@ files written to disk are not part of Blender's undo (see docs/settings.md).
 """
 from __future__ import annotations
 
-import threading
 import traceback
 
 import bpy
@@ -24,7 +23,7 @@ from bpy.props import EnumProperty
 from ..core.executor import Cancelled, Progress
 from ..core.scene import SceneError
 from . import overlay, preferences, writeback
-from .job import BakeError, BakeJob
+from .job import BakeError, BakeJob, JobRunner
 from .properties import to_settings
 
 SCOPE_ITEMS = (
@@ -129,38 +128,30 @@ Esc or Cancel stops it and leaves the file unchanged"""
     def invoke(self, context, event):
         if bpy.app.background or context.window is None:
             return self.execute(context)
+        self.state = {"stage": "Starting", "fraction": 0.0, "eta": None}
+        self.progress = Progress(self._on_progress)
         try:
             self.job = self._make_job(context)
-            self.job.prepare()
+            self.runner = JobRunner(self.job, self.progress)
+            self.runner.advance_to_worker()  # the choose step: errors show at once, before any wait
         except (BakeError, SceneError, ValueError) as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
-        except Exception as e:  # a bug: prepare() has rolled back
+        except Exception as e:  # a bug: the step has rolled back
             traceback.print_exc()
             self.report({"ERROR"}, _internal(e))
             return {"CANCELLED"}
-        self.state = {"stage": "Starting", "fraction": 0.0, "eta": None}
-        self.progress = Progress(self._on_progress)
-        self.error = None
         self.aborted = False
-        self.thread = threading.Thread(target=self._compute, name="pdic-bake", daemon=True)
         type(self)._running = True
         type(self)._active = self
         wm = context.window_manager
         self.timer = wm.event_timer_add(0.2, window=context.window)
         wm.progress_begin(0, 1000)
         wm.modal_handler_add(self)
-        self.thread.start()
         return {"RUNNING_MODAL"}
 
     def _on_progress(self, stage, fraction, eta):  # worker thread: only plain data here
         self.state = {"stage": stage, "fraction": fraction, "eta": eta}
-
-    def _compute(self):
-        try:
-            self.job.compute(self.progress)
-        except BaseException as e:  # handed to the main thread
-            self.error = e
 
     def request_cancel(self):
         """Ask the worker to stop (any thread); it raises Cancelled at its next chunk (< ~1 s)."""
@@ -170,7 +161,10 @@ Esc or Cancel stops it and leaves the file unchanged"""
         """Main thread, before undo or loading a file: stop now and undo the bake's changes while
         the data it touched still exists; the modal step then just ends."""
         self.progress.cancel()
-        self.thread.join()
+        runner = getattr(self, "runner", None)
+        thread = runner.thread if runner is not None else self.thread
+        if thread is not None:
+            thread.join()
         self.job.rollback()
         self.aborted = True
 
@@ -205,7 +199,7 @@ Esc or Cancel stops it and leaves the file unchanged"""
             return {"RUNNING_MODAL"}
         if event.type != "TIMER" or event.timer is not self.timer:
             return {"PASS_THROUGH"}
-        if self.thread.is_alive():
+        if not self.runner.advance():
             s = self.state
             context.window_manager.progress_update(int(1000 * s["fraction"]))
             if not self.progress.cancel_requested.is_set():
@@ -216,29 +210,20 @@ Esc or Cancel stops it and leaves the file unchanged"""
         return self._conclude(context)
 
     def _conclude(self, context):
-        """Main thread, worker finished: roll back on cancel/error, else write the results."""
-        if self.error is not None:
-            self.job.rollback()
-            if isinstance(self.error, Cancelled):
-                self.report({"WARNING"}, "PDIC: bake cancelled; nothing was changed")
-            elif isinstance(self.error, (SceneError, ValueError)):
-                self.report({"ERROR"}, f"PDIC: {self.error}")
-            else:
-                traceback.print_exception(self.error)
-                self.report({"ERROR"}, _internal(self.error))
-            return {"CANCELLED"}
-        try:
-            report = self.job.finish()
-        except (BakeError, SceneError, ValueError) as e:
-            self.report({"ERROR"}, str(e))
-            return {"CANCELLED"}
-        except Exception as e:
-            traceback.print_exc()
-            self.report({"ERROR"}, _internal(e))
-            return {"CANCELLED"}
-        self._report_done(report)
-        overlay.tag_redraw(context)
-        return {"FINISHED"}
+        """Main thread, the runner is done: report the failure (already rolled back) or the results."""
+        error = self.runner.error
+        if error is None:
+            self._report_done(self.job.report)
+            overlay.tag_redraw(context)
+            return {"FINISHED"}
+        if isinstance(error, Cancelled):
+            self.report({"WARNING"}, "PDIC: bake cancelled; nothing was changed")
+        elif isinstance(error, (BakeError, SceneError, ValueError)):
+            self.report({"ERROR"}, f"PDIC: {error}" if not isinstance(error, BakeError) else str(error))
+        else:
+            traceback.print_exception(error)
+            self.report({"ERROR"}, _internal(error))
+        return {"CANCELLED"}
 
     def cancel(self, context):  # Blender closes the window / file during the bake
         if not self.aborted:
@@ -306,6 +291,10 @@ class PDIC_OT_clear(bpy.types.Operator):
                 if props is not None and scene.library is None:
                     props.last_stats = props.manifest_file = props.records_file = ""
             overlay.tag_redraw(context)
+        kept = counts.pop("kept_edited", 0)
+        if kept:
+            self.report({"WARNING"}, f"PDIC: kept {kept} edited baked-lighting material(s) as '... (edited)' "
+                                     f"materials (your edits; delete them if not needed)")
         if not any(counts.values()):
             self.report({"INFO"}, "PDIC: nothing to clear")
         else:
@@ -328,7 +317,7 @@ class PDIC_OT_toggle_shading(bpy.types.Operator):
     ), default="TOGGLE", description="Which shading to show on the baked objects")
 
     def execute(self, context):
-        objects = [o for o in context.scene.objects if writeback.owned_materials(o.name)]
+        objects = [o for o in context.scene.objects if writeback.owned_materials(o)]
         if not objects:
             self.report({"WARNING"}, "PDIC: no baked light maps in this scene (bake first)")
             return {"CANCELLED"}

@@ -124,8 +124,8 @@ def parse_stats(text: str) -> dict | None:
 
 def shading_state(scene) -> str | None:
     """What the scene's baked objects show: ``"BAKED"``, ``"ORIGINAL"``, ``"MIXED"``, or None if none is baked."""
-    owners = {m[writeback.OWNER] for m in writeback.owned_materials()}
-    shown = [writeback.is_baked_shading(o) for o in scene.objects if o.name in owners]
+    owners = {writeback.owner_of(m) for m in writeback.owned_materials()}
+    shown = [writeback.is_baked_shading(o) for o in scene.objects if o in owners]
     if not shown:
         return None
     return "BAKED" if all(shown) else "ORIGINAL" if not any(shown) else "MIXED"
@@ -212,10 +212,12 @@ def draw_object(layout, obj) -> None:
     sub.prop(settings, "resolution", text="Resolution")
     if obj.library is not None or obj.data.library is not None:
         layout.label(text="Linked from a library: skipped by the bake", icon="LIBRARY_DATA_DIRECT")
-    image = bpy.data.images.get(writeback.image_name(obj.name))
-    if image is not None and writeback.is_pdic(image):
+    image = next(iter(writeback.owned_images(obj)), None)
+    if image is not None:
         w, h = image.size
         layout.label(text=f"Light map {w}x{h}: {image.name}", icon="IMAGE_DATA")
+        if writeback.is_baked_shading(obj):  # the material shown is rebuilt by every bake
+            layout.label(text="Shown material is a baked copy: edit the original", icon="ERROR")
     elif settings.bake:
         layout.label(text="Not baked yet", icon="DOT")
 

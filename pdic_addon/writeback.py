@@ -18,7 +18,9 @@ baked lighting; :func:`clear` removes everything above (files on disk stay).
 """
 from __future__ import annotations
 
+import hashlib
 import os
+import shutil
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +28,7 @@ from pathlib import Path
 import bpy
 import numpy as np
 
+from ..core import atomic
 from . import uvmaps
 
 OWNER = "pdic_owner"           # ID property: name of the object a PDIC datablock belongs to
@@ -33,6 +36,9 @@ SLOT = "pdic_slot"             # material copies: slot index
 SOURCE = "pdic_source"         # material copies: the user's material (ID pointer; absent for an empty slot)
 USER_LINK = "pdic_user_link"   # material copies: the slot's link before the bake, 'DATA' or 'OBJECT'
 USER_OBJECT_MATERIAL = "pdic_user_object_material"  # the object-level material before the bake (ID pointer)
+OWNER_OBJECT = "pdic_object"   # the owning object itself (ID pointer): ownership survives renaming it
+FINGERPRINT = "pdic_fingerprint"  # material copies: digest of the tree as built (an edit changes it)
+EDITED_SUFFIX = " (edited)"    # an edited copy is kept under its name plus this when its bake is replaced
 IMAGE_PREFIX = "PDIC_"
 COPY_INFIX = ".PDIC."
 FORMATS = {"EXR_HALF": "16", "EXR_FLOAT": "32"}
@@ -124,29 +130,54 @@ def ensure_directory(plan: OutputPlan, txn) -> None:
 
 
 def replace_file(path: Path, write, txn) -> None:
-    """Write ``path`` with ``write(path)``, backing up an existing file for undo (commit drops the backup)."""
-    backup = None
-    if path.exists():
-        backup = path.with_name(path.name + f".pdic-backup-{uuid.uuid4().hex[:8]}")
-        os.replace(path, backup)
+    """Write ``path`` atomically with ``write(tmp_path)``; undo puts the previous file back, commit drops it.
+
+    The previous file stays in place until the new one is complete, so a failed write
+    changes nothing on disk.
+    """
+    def write_and_keep_previous(tmp: Path) -> None:
+        write(tmp)
+        if path.exists():  # a second name for the previous file: ``path`` itself is never missing
+            try:
+                os.link(path, backup)
+            except OSError:  # file systems without hard links
+                shutil.copy2(path, backup)
+
+    backup = atomic.temporary_sibling(path, "backup")
+    try:
+        atomic.write_atomic(path, write_and_keep_previous)
+    except OSError as e:
+        if backup.exists():
+            backup.unlink()
+        raise WritebackError(f"cannot write {str(path)!r}: {atomic.describe_os_error(e, path.parent)}") from e
+    except RuntimeError as e:  # Blender's image writer
+        if backup.exists():
+            backup.unlink()
+        raise WritebackError(f"cannot write {str(path)!r}: {_runtime_message(e, path.parent)}") from e
 
     def undo():
-        if path.exists():
-            path.unlink()
-        if backup is not None and backup.exists():
+        if backup.exists():
             os.replace(backup, path)
+        elif path.exists():
+            path.unlink()
 
     def commit():
-        if backup is not None and backup.exists():
+        if backup.exists():
             backup.unlink()
 
     txn.add(undo, f"restore file {path}", commit=commit)
+
+
+def _runtime_message(error: RuntimeError, folder: Path) -> str:
+    """Blender reports a full disk as a generic error (e.g. "Invalid argument"): say what it is."""
+    free = None
     try:
-        write(path)
-    except (OSError, RuntimeError) as e:
-        raise WritebackError(f"cannot write {str(path)!r}: {e}") from e
-    if not path.exists():
-        raise WritebackError(f"cannot write {str(path)!r}: Blender did not create it")
+        free = shutil.disk_usage(folder).free
+    except OSError:
+        pass
+    if free is not None and free < 1 << 20:
+        return atomic.describe_os_error(OSError(28, "No space left on device"), folder)
+    return str(error)
 
 
 # --------------------------------------------------------------------------- images
@@ -154,8 +185,31 @@ def image_name(object_name: str) -> str:
     return IMAGE_PREFIX + object_name
 
 
-def image_filename(object_name: str) -> str:
-    return bpy.path.clean_name(image_name(object_name)) + ".exr"
+def file_key(name: str) -> str:
+    """A file-name-safe key for ``name``: stable, and distinct for distinct names.
+
+    Plain names (ASCII letters, digits, ``_`` and ``-``) are their own key; any other
+    name gets its cleaned form plus 8 hex digits of its sha1 (``Wall.001`` ->
+    ``Wall_001.3c6e1b2a``), so ``Wall.001``/``Wall_001``, ``Wall 1``/``Wall_1`` and
+    ``Mèsa``/``Mésa`` never share a file. Keys of plain names never contain ``.``.
+    """
+    clean = bpy.path.clean_name(name)
+    if clean == name and name.isascii():
+        return name
+    return f"{clean}.{hashlib.sha1(name.encode('utf-8')).hexdigest()[:8]}"
+
+
+def blend_key(blend_path: str | None = None) -> str:
+    """The .blend's part of output file names ("" for an unsaved file): its name without ``.blend``."""
+    blend_path = bpy.data.filepath if blend_path is None else blend_path
+    return file_key(Path(blend_path).stem) if blend_path else ""
+
+
+def image_filename(object_name: str, blend_path: str | None = None) -> str:
+    """``<blend>.PDIC_<object>.exr``: unique per object and per .blend, the same at every re-bake
+    (two .blend files sharing an output folder never overwrite each other's maps)."""
+    prefix = blend_key(blend_path)
+    return (prefix + "." if prefix else "") + IMAGE_PREFIX + file_key(object_name) + ".exr"
 
 
 def _remove_image(image):
@@ -223,17 +277,63 @@ def write_image(object_name: str, pixels: np.ndarray, plan: OutputPlan, image_fo
     image.alpha_mode = "CHANNEL_PACKED"  # alpha is coverage, not opacity: never premultiply
     image.use_half_precision = image_format == "EXR_HALF"
     image.use_fake_user = True
-    image[OWNER] = object_name
+    tag_owner(image, object_name)
     return image, relpath
+
+
+# --------------------------------------------------------------------------- ownership
+def tag_owner(idblock, object_name: str) -> None:
+    """Mark ``idblock`` as PDIC's output for the object ``object_name`` (by name and by pointer)."""
+    idblock[OWNER] = object_name
+    obj = bpy.data.objects.get(object_name)
+    if obj is not None:
+        idblock[OWNER_OBJECT] = obj
+
+
+def is_pdic(idblock) -> bool:
+    return idblock is not None and OWNER in idblock.keys()
+
+
+def owner_of(idblock):
+    """The object a PDIC datablock belongs to (followed through renames), or None if it is gone.
+
+    An object deleted (or joined into another) while a copy still points at it lingers
+    in ``bpy.data`` without a scene: that counts as gone.
+    """
+    obj = idblock.get(OWNER_OBJECT)
+    if obj is None:
+        obj = bpy.data.objects.get(idblock[OWNER])
+    return obj if obj is not None and obj.users_scene else None
+
+
+def _owned_by(idblock, owner) -> bool:
+    if owner is None:
+        return True
+    obj = bpy.data.objects.get(owner) if isinstance(owner, str) else owner
+    pointer = idblock.get(OWNER_OBJECT)
+    if pointer is not None and obj is not None:
+        return pointer == obj
+    return idblock[OWNER] == (owner if isinstance(owner, str) else owner.name)
+
+
+def owned_materials(owner=None) -> list:
+    """PDIC material copies of ``owner`` (an object or its name; None = all)."""
+    return [m for m in bpy.data.materials if is_pdic(m) and _owned_by(m, owner)]
+
+
+def owned_images(owner=None) -> list:
+    """PDIC light-map images of ``owner`` (an object or its name; None = all)."""
+    return [i for i in bpy.data.images if is_pdic(i) and _owned_by(i, owner)]
+
+
+def orphaned_owners() -> set:
+    """Owner names of PDIC datablocks whose object no longer exists (deleted, or joined into another)."""
+    return {d[OWNER] for d in (*owned_materials(), *owned_images()) if owner_of(d) is None}
 
 
 # --------------------------------------------------------------------------- material copies
 def copy_name(material_name: str, object_name: str) -> str:
     return f"{material_name}{COPY_INFIX}{object_name}"
-
-
-def is_pdic(idblock) -> bool:
-    return idblock is not None and OWNER in idblock.keys()
 
 
 def _object_material(slot):
@@ -246,19 +346,29 @@ def _object_material(slot):
     return material
 
 
-def _base_color_source(material):
-    """(from_socket or None, constant rgb) feeding the base colour of ``material``'s surface."""
-    fallback = tuple(material.diffuse_color[:3]) if material is not None else DEFAULT_BASE_COLOR
+def _surface_node(material):
+    """The shader node feeding the active output's Surface (through reroutes), or None."""
     if material is None or material.node_tree is None:
-        return None, fallback
+        return None
     tree = material.node_tree
     outputs = [n for n in tree.nodes if n.type == "OUTPUT_MATERIAL" and n.target in ("ALL", "EEVEE")]
     output = next((n for n in outputs if n.is_active_output), outputs[0] if outputs else None)
     if output is None or not output.inputs["Surface"].is_linked:
-        return None, fallback
+        return None
     node = output.inputs["Surface"].links[0].from_node
     while node.type == "REROUTE" and node.inputs[0].is_linked:
         node = node.inputs[0].links[0].from_node
+    return node
+
+
+def _base_color_source(material):
+    """(from_socket or None, constant rgb) feeding the base colour of ``material``'s surface."""
+    fallback = tuple(material.diffuse_color[:3]) if material is not None else DEFAULT_BASE_COLOR
+    node = _surface_node(material)
+    if node is None:
+        return None, fallback
+    if node.type == "EMISSION":  # reflects nothing (as extraction reads it): only its glow shows
+        return None, (0.0, 0.0, 0.0)
     socket = {"BSDF_PRINCIPLED": "Base Color", "BSDF_DIFFUSE": "Color"}.get(node.type)
     if socket is None:
         return None, fallback
@@ -271,25 +381,63 @@ def _base_color_source(material):
 def _constant_emission(material):
     """(3,) constant emitted radiance of a Principled/Emission surface, zeros if none or not constant."""
     zero = (0.0, 0.0, 0.0)
-    if material is None or material.node_tree is None:
-        return zero
-    for node in material.node_tree.nodes:
-        if node.type == "BSDF_PRINCIPLED":
-            color, strength = node.inputs["Emission Color"], node.inputs["Emission Strength"]
-        else:
-            continue
-        if color.is_linked or strength.is_linked:
+    surface = _surface_node(material)
+    if surface is not None and surface.type == "EMISSION":
+        color, strength = surface.inputs["Color"], surface.inputs["Strength"]
+    else:
+        node = next((n for n in material.node_tree.nodes if n.type == "BSDF_PRINCIPLED"), None) \
+            if material is not None and material.node_tree is not None else None
+        if node is None:
             return zero
-        return tuple(float(c) * float(strength.default_value) for c in color.default_value[:3])
-    return zero
+        color, strength = node.inputs["Emission Color"], node.inputs["Emission Strength"]
+    if color.is_linked or strength.is_linked:
+        return zero
+    return tuple(float(c) * float(strength.default_value) for c in color.default_value[:3])
 
 
-def build_copy(obj, slot_index: int, source, image, name: str):
+NODE_SETTINGS = ("operation", "blend_type", "data_type", "interpolation", "extension", "uv_map", "target",
+                 "is_active_output", "mute")
+"""Node attributes (besides socket values and links) whose change counts as an edit of a copy."""
+
+
+def fingerprint(material) -> str:
+    """Digest of ``material``'s node tree (nodes, their settings and socket values, links).
+
+    Stored on a copy when it is built; a different digest later means the user edited
+    the copy (:func:`is_edited`).
+    """
+    tree = material.node_tree
+    if tree is None:
+        return ""
+    rows = []
+    for n in sorted(tree.nodes, key=lambda n: n.name):
+        values = [(s.identifier, _rounded(s.default_value)) for s in n.inputs if hasattr(s, "default_value")]
+        settings = [(a, str(getattr(n, a))) for a in NODE_SETTINGS if hasattr(n, a)]
+        image = getattr(n, "image", None)
+        rows.append((n.bl_idname, n.name, values, settings, image is not None and is_pdic(image)))
+    links = sorted((l.from_node.name, l.from_socket.identifier, l.to_node.name, l.to_socket.identifier)
+                   for l in tree.links)
+    return hashlib.sha1(repr((rows, links)).encode()).hexdigest()
+
+
+def _rounded(value):
+    if hasattr(value, "__len__") and not isinstance(value, str):
+        return tuple(round(float(x), 5) for x in value)
+    return round(value, 5) if isinstance(value, float) else value
+
+
+def is_edited(copy) -> bool:
+    """True if the user changed a PDIC copy's nodes after the bake built it."""
+    return FINGERPRINT in copy and copy[FINGERPRINT] != fingerprint(copy)
+
+
+def build_copy(obj, slot_index: int, source, image, name: str, txn=None):
     """A new material showing ``light map x base colour`` of ``source`` (None = empty slot).
 
     Tree: UV Map (PDIC_Lightmap) -> Image Texture (light map, Non-Color) ->
     Vector Math MULTIPLY with the source's base colour (its linked socket or
     constant) [-> ADD constant emission] -> Emission (strength 1) -> Material Output.
+    ``txn`` records the copy's removal as soon as it exists.
     """
     if source is not None:
         copy = source.copy()
@@ -298,15 +446,31 @@ def build_copy(obj, slot_index: int, source, image, name: str):
                 del copy[key]
     else:
         copy = bpy.data.materials.new(name)
-    copy.name = name
-    if copy.node_tree is None:
-        copy.use_nodes = True
-    tree = copy.node_tree
-    from_socket, constant = _base_color_source(copy) if source is not None else (None, DEFAULT_BASE_COLOR)
-    emission = _constant_emission(copy) if source is not None else (0.0, 0.0, 0.0)
+    if txn is not None:
+        txn.add(lambda: _remove_material(copy), f"remove material {name}")
+    try:  # a half-built copy must not stay behind
+        copy.name = name
+        if copy.node_tree is None:
+            copy.use_nodes = True
+        from_socket, constant = _base_color_source(copy) if source is not None else (None, DEFAULT_BASE_COLOR)
+        emission = _constant_emission(copy) if source is not None else (0.0, 0.0, 0.0)
+        _add_baked_lighting_nodes(copy.node_tree, image, from_socket, constant, emission)
+        copy.use_fake_user = True
+        tag_owner(copy, obj.name)
+        copy[SLOT] = slot_index
+        if source is not None:
+            copy[SOURCE] = source
+        copy[FINGERPRINT] = fingerprint(copy)
+    except BaseException:
+        _remove_material(copy)
+        raise
+    return copy
+
+
+def _add_baked_lighting_nodes(tree, image, from_socket, constant, emission) -> None:
+    """Replace the tree's outputs by ``light map x base colour (+ emission)`` through an Emission shader."""
     for node in [n for n in tree.nodes if n.type == "OUTPUT_MATERIAL"]:
         tree.nodes.remove(node)
-
     x, y = 1200.0, 600.0
     uv = tree.nodes.new("ShaderNodeUVMap")
     uv.uv_map = uvmaps.LIGHTMAP_UV
@@ -346,13 +510,6 @@ def build_copy(obj, slot_index: int, source, image, name: str):
     for n in (uv, tex, multiply, shader, output):
         n["pdic"] = True
 
-    copy.use_fake_user = True
-    copy[OWNER] = obj.name
-    copy[SLOT] = slot_index
-    if source is not None:
-        copy[SOURCE] = source
-    return copy
-
 
 def build_copies(obj, image, txn, temporary: bool = False) -> tuple[list, list[str]]:
     """Build (not assign) a PDIC copy per material slot of ``obj``; returns (copies by slot, warnings)."""
@@ -365,11 +522,13 @@ def build_copies(obj, image, txn, temporary: bool = False) -> tuple[list, list[s
     for i, slot in enumerate(obj.material_slots):
         source = slot.material
         base = source.name if source is not None else f"Slot{i}"
-        name = copy_name(base, obj.name) + (".pdic_new" if temporary else "")
-        copy = build_copy(obj, i, source, image, name)
-        txn.add(lambda copy=copy: _remove_material(copy), f"remove material {name}")
-        copies.append(copy)
+        name = copy_name(base, obj.name) + (TEMPORARY_SUFFIX if temporary else "")
+        copies.append(build_copy(obj, i, source, image, name, txn))
     return copies, warnings
+
+
+TEMPORARY_SUFFIX = ".pdic_new"
+"""A re-bake's new datablocks carry this until the commit gives them their final names."""
 
 
 def _remove_material(material):
@@ -383,9 +542,11 @@ def assign_copies(obj, copies: list, txn=None) -> None:
     for i, copy in enumerate(copies):
         if _shows_copy(obj, i) == copy:
             continue
+        if txn is not None:  # registered first: a failure half-way still restores the slot
+            slot = obj.material_slots[i]
+            txn.add(lambda obj=obj, i=i, link=slot.link, user=_object_material(slot): _set_slot(obj, i, link, user),
+                    f"restore slot {i} of {obj.name}")
         assign_copy(obj, i, copy)
-        if txn is not None:
-            txn.add(lambda obj=obj, i=i, copy=copy: _restore_slot(obj, i, copy), f"restore slot {i} of {obj.name}")
 
 
 def assign_copy(obj, index: int, copy) -> None:
@@ -403,10 +564,14 @@ def assign_copy(obj, index: int, copy) -> None:
 
 def _restore_slot(obj, index: int, copy) -> None:
     """Put the slot back as the user had it (link and object-level material)."""
+    _set_slot(obj, index, copy.get(USER_LINK, "DATA"), copy.get(USER_OBJECT_MATERIAL))
+
+
+def _set_slot(obj, index: int, link: str, object_material) -> None:
     slot = obj.material_slots[index]
     slot.link = "OBJECT"
-    slot.material = copy.get(USER_OBJECT_MATERIAL)
-    slot.link = copy.get(USER_LINK, "DATA")
+    slot.material = object_material
+    slot.link = link
 
 
 def _shows_copy(obj, index: int):
@@ -417,12 +582,36 @@ def _shows_copy(obj, index: int):
     return None
 
 
-def owned_materials(object_name: str | None = None) -> list:
-    return [m for m in bpy.data.materials if is_pdic(m) and (object_name is None or m[OWNER] == object_name)]
+def release_mesh_copies(txn=None, meshes=None) -> int:
+    """Put the user's material back wherever a PDIC copy became a mesh's own material.
+
+    Joining objects (Ctrl+J) or copying materials turns the OBJECT-linked copies into
+    mesh materials; each copy remembers its source (the user's material, or an empty
+    slot). Returns the number of slots repaired; ``txn`` records how to undo them.
+    """
+    repaired = 0
+    for mesh in (bpy.data.meshes if meshes is None else meshes):
+        if mesh.library is not None:
+            continue
+        for i, material in enumerate(mesh.materials):
+            if is_pdic(material):
+                mesh.materials[i] = material.get(SOURCE)
+                repaired += 1
+                if txn is not None:
+                    txn.add(lambda mesh=mesh, i=i, m=material: mesh.materials.__setitem__(i, m),
+                            f"restore material {i} of mesh {mesh.name}")
+    return repaired
 
 
-def owned_images(object_name: str | None = None) -> list:
-    return [i for i in bpy.data.images if is_pdic(i) and (object_name is None or i[OWNER] == object_name)]
+def _release_copy(copy, txn=None) -> None:
+    """Restore every slot (any object) and mesh material showing ``copy``."""
+    for holder in bpy.data.objects:
+        for i in range(len(holder.material_slots)):
+            if _shows_copy(holder, i) == copy:
+                _restore_slot(holder, i, copy)
+                if txn is not None:
+                    txn.add(lambda h=holder, i=i: assign_copy(h, i, copy), f"show {copy.name} on {holder.name}")
+    release_mesh_copies(txn, [m for m in bpy.data.meshes if copy in m.materials[:]])
 
 
 def _objects_of(scene_or_objects) -> list:
@@ -437,7 +626,7 @@ def set_shading(scene_or_objects, baked: bool) -> int:
     """Switch objects between baked lighting (True) and their original shading; returns slots switched."""
     switched = 0
     for obj in _objects_of(scene_or_objects):
-        copies = {int(m[SLOT]): m for m in owned_materials(obj.name)}
+        copies = {int(m[SLOT]): m for m in owned_materials(obj)}
         for i in range(len(obj.material_slots)):
             shown = _shows_copy(obj, i)
             if baked and shown is None and i in copies:
@@ -454,62 +643,105 @@ def is_baked_shading(obj) -> bool:
 
 
 # --------------------------------------------------------------------------- removing
-def remove_outputs(object_name: str, keep=()) -> int:
+def keep_edited(copy, name: str | None = None) -> str:
+    """Turn an edited copy into a plain material of the user's (tags dropped, ``<name> (edited)``)."""
+    for key in (OWNER, OWNER_OBJECT, SLOT, SOURCE, USER_LINK, USER_OBJECT_MATERIAL, FINGERPRINT):
+        if key in copy:
+            del copy[key]
+    copy.name = (name or copy.name) + EDITED_SUFFIX
+    return copy.name
+
+
+def _edited_message(copy) -> str:
+    source = copy.get(SOURCE)
+    where = f"material {source.name!r}" if source is not None else "the object's material"
+    return (f"material {copy.name!r} (the baked-lighting copy) was edited after its bake; a bake rebuilds "
+            f"it from {where}, so the edits are kept in material {copy.name + EDITED_SUFFIX!r}: "
+            f"make them in {where} to keep them in future bakes")
+
+
+def retire_outputs(owner, keep, txn, warnings: list) -> None:
+    """Take ``owner``'s previous copies and image out of use, undoably: slots are restored
+    and the datablocks renamed aside at once; ``txn.commit()`` deletes them (an edited
+    copy is kept as a plain material, with a warning)."""
+    for copy in [m for m in owned_materials(owner) if m not in keep]:
+        _release_copy(copy, txn)
+        if is_edited(copy):
+            warnings.append(_edited_message(copy))
+            _set_aside(copy, txn, on_commit=keep_edited)
+        else:
+            _set_aside(copy, txn, on_commit=lambda m, _: _remove_material(m))
+    for image in [i for i in owned_images(owner) if i not in keep]:
+        _set_aside(image, txn, on_commit=lambda i, _: _remove_image(i))
+
+
+def _set_aside(idblock, txn, on_commit) -> None:
+    """Free ``idblock``'s name for its replacement; ``on_commit(idblock, original_name)`` runs at commit."""
+    name = idblock.name
+    idblock.name = name[:40] + ".pdic_old"
+    txn.add(lambda: setattr(idblock, "name", name), f"name {name} back", commit=lambda: on_commit(idblock, name))
+
+
+def rename(idblock, name: str, txn) -> None:
+    """Give ``idblock`` its final ``name`` (undo: its current one)."""
+    old = idblock.name
+    idblock.name = name
+    txn.add(lambda: setattr(idblock, "name", old), f"name {name} back to {old}")
+
+
+def remove_outputs(owner, keep=()) -> int:
     """Remove the PDIC copies and image of one object (restoring its slots); returns datablocks removed.
 
-    keep : datablocks not to remove (a re-bake's new outputs).
+    owner : the object or its name. keep : datablocks not to remove.
+    An edited copy is kept as a plain material (see :func:`keep_edited`).
     """
     removed = 0
-    obj = bpy.data.objects.get(object_name)
-    for copy in owned_materials(object_name):
-        if copy in keep:
-            continue
-        holders = [obj] if obj is not None else []
-        holders += [o for o in bpy.data.objects if o is not obj and any(
-            s.link == "OBJECT" and s.material == copy for s in o.material_slots)]
-        for holder in holders:
-            for i in range(len(holder.material_slots)):
-                if _shows_copy(holder, i) == copy:
-                    _restore_slot(holder, i, copy)
-        bpy.data.materials.remove(copy)
-        removed += 1
-    for image in owned_images(object_name):
-        if image in keep:
-            continue
-        bpy.data.images.remove(image)
-        removed += 1
+    for copy in owned_materials(owner):
+        if copy not in keep:
+            removed += _drop_copy(copy)
+    for image in owned_images(owner):
+        if image not in keep:
+            bpy.data.images.remove(image)
+            removed += 1
     return removed
+
+
+def _drop_copy(copy) -> int:
+    """Release and delete ``copy``, or keep it as a plain material if edited; returns 1 if deleted."""
+    _release_copy(copy)
+    if is_edited(copy):
+        keep_edited(copy)
+        return 0
+    bpy.data.materials.remove(copy)
+    return 1
 
 
 def clear(scene_or_objects=None) -> dict:
     """Remove every PDIC-owned thing from the file and restore slots exactly.
 
     scene_or_objects : a Scene (its objects), a list of objects, or None (the whole file).
-    Restores material slots, removes material copies, light-map images and the
-    PDIC_Lightmap UV maps. Files on disk are kept. Returns counts per kind.
+    Restores material slots and mesh materials (also after Join), removes material
+    copies, light-map images and the PDIC_Lightmap UV maps; an edited copy is kept as a
+    plain material (``kept_edited``). Files on disk are kept. Returns counts per kind.
     """
     objects = _objects_of(scene_or_objects)
     whole = scene_or_objects is None
-    counts = {"materials": 0, "images": 0, "uv_maps": 0}
-    # restore slots showing a copy, on any object (even a renamed one)
-    for obj in objects:
+    counts = {"materials": 0, "images": 0, "uv_maps": 0, "kept_edited": 0}
+    for obj in objects:  # restore slots showing a copy, on any object (even a renamed one)
         for i in range(len(obj.material_slots)):
             shown = _shows_copy(obj, i)
             if shown is not None:
                 _restore_slot(obj, i, shown)
-    names = {o.name for o in objects}
-    for copy in owned_materials():
-        if whole or copy[OWNER] in names:
-            bpy.data.materials.remove(copy)
-            counts["materials"] += 1
-    for image in owned_images():
-        if whole or image[OWNER] in names:
-            bpy.data.images.remove(image)
-            counts["images"] += 1
-    if scene_or_objects is None:
-        meshes = [m for m in bpy.data.meshes if m.library is None]
-    else:
-        meshes = {o.data for o in objects if o.type == "MESH" and o.data is not None and o.data.library is None}
+    meshes = ([m for m in bpy.data.meshes if m.library is None] if whole else
+              list({o.data for o in objects if o.type == "MESH" and o.data is not None and o.data.library is None}))
+    release_mesh_copies(meshes=meshes)
+    for copy in [m for m in owned_materials() if whole or any(_owned_by(m, o) for o in objects)]:
+        deleted = _drop_copy(copy)
+        counts["materials"] += deleted
+        counts["kept_edited"] += 1 - deleted
+    for image in [i for i in owned_images() if whole or any(_owned_by(i, o) for o in objects)]:
+        bpy.data.images.remove(image)
+        counts["images"] += 1
     for mesh in meshes:
         if uvmaps.remove_lightmap_uv(mesh):
             counts["uv_maps"] += 1

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from addon_scenes import fast_settings, lamp
 from snapshot import snapshot
 
 from pdic.pdic_addon import job as job_module
@@ -39,21 +40,11 @@ def _floor(bpy, material=None):
 
 
 def _lamp(bpy):
-    bpy.ops.object.light_add(type="POINT", location=(0, 0, 3))
-    bpy.context.object.data.energy = 300.0
-
-
-def _fast_settings(bpy):
-    props = bpy.context.scene.pdic
-    props.quality = "CUSTOM"
-    props.photons = 2000
-    props.max_bounces = 1
-    props.hemisphere_theta, props.hemisphere_phi = 2, 4
-    props.default_resolution = RES
+    lamp(bpy)
 
 
 def _save(bpy, tmp_path):
-    _fast_settings(bpy)
+    fast_settings(bpy, RES)
     bpy.ops.object.select_all(action="DESELECT")
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "scene.blend"))
 

@@ -79,13 +79,13 @@ def test_headless_bake_writes_images_manifest_and_preview(scene_blend, tmp_path)
     entries = {e["name"]: e for e in doc["objects"]}
     assert set(entries) == {"Floor", "Box"}
     for name, e in entries.items():
-        assert e["image"] == f"PDIC_{name}.exr" and (out / e["image"]).is_file()
+        assert e["image"] == f"scene.PDIC_{name}.exr" and (out / e["image"]).is_file()
         assert e["uv_map"] == "PDIC_Lightmap" and (e["width"], e["height"]) == (32, 32)
         assert 0 < e["texels"] <= 32 * 32
     assert doc["settings"]["photons"] == 4000 and doc["settings"]["quality"] == "CUSTOM"
     assert doc["stats"]["seconds_total"] > 0 and "addon_unwrap" in doc["stats"]["seconds"]
     # the report names stages, texel counts and output paths
-    assert "stage times" in r.stdout and "32x32 texels" in r.stdout and str(out / "PDIC_Floor.exr") in r.stdout
+    assert "stage times" in r.stdout and "32x32 texels" in r.stdout and str(out / "scene.PDIC_Floor.exr") in r.stdout
     # preview: the lit floor under the lamp is brighter than the unlit sky corner
     image = read_png(png)
     assert image.shape == (54, 96, 3)
@@ -97,12 +97,12 @@ def test_save_blend_keeps_light_maps_linked_to_uv_map(scene_blend, tmp_path, ble
     saved = tmp_path / "baked.blend"
     r = run("--blend", blend, "--save-blend", saved, "--objects", "Floor", *FAST)
     assert r.returncode == 0, r.stderr
-    assert (tmp_path / "pdic_lightmaps" / "PDIC_Floor.exr").is_file()  # default //pdic_lightmaps/
+    assert (tmp_path / "pdic_lightmaps" / "scene.PDIC_Floor.exr").is_file()  # default //pdic_lightmaps/
     blender.ops.wm.open_mainfile(filepath=str(saved))
     floor = blender.data.objects["Floor"]
     assert "PDIC_Lightmap" in floor.data.uv_layers and "PDIC_Box" not in blender.data.images
     image = blender.data.images["PDIC_Floor"]
-    assert image.filepath == "//pdic_lightmaps/PDIC_Floor.exr" and len(image.pixels) == 32 * 32 * 4
+    assert image.filepath == "//pdic_lightmaps/scene.PDIC_Floor.exr" and len(image.pixels) == 32 * 32 * 4
     assert floor.material_slots[0].link == "OBJECT" and floor.material_slots[0].material.name == "FloorMat.PDIC.Floor"
 
 
@@ -136,3 +136,71 @@ def test_bad_input_names_the_culprit(scene_blend, tmp_path):
     assert r.returncode == 1 and "missing.blend" in r.stderr
     r = run("--blend", blend, "--passes", "diract", *FAST)
     assert r.returncode == 2 and "diract" in r.stderr
+
+
+# --------------------------------------------------------------------------- issue 14
+def folder_state(folder: Path):
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())} if folder.exists() else None
+
+
+@pytest.mark.parametrize("how", ["same", "relative", "symlink"])
+def test_save_blend_never_overwrites_the_input(scene_blend, tmp_path, how):
+    blend = scene_blend()
+    before = digest(blend)
+    target = {"same": blend, "relative": Path("..") / blend.name}.get(how)
+    if how == "symlink":
+        target = tmp_path / "link.blend"
+        target.symlink_to(blend)
+    cwd = tmp_path / "work"
+    cwd.mkdir()
+    r = subprocess.run([sys.executable, str(SCRIPT), "--blend", str(blend), "--save-blend", str(target), *FAST],
+                       cwd=cwd, capture_output=True, text=True, timeout=240)
+    assert r.returncode == 2 and "--save-blend" in r.stderr and "being baked" in r.stderr
+    assert digest(blend) == before and not (tmp_path / "pdic_lightmaps").exists()
+
+
+@pytest.mark.parametrize("option, value", [("--seed", "-1"), ("--threads", "-1"), ("--photons", "-1"),
+                                           ("--texel-density", "inf"), ("--texel-density", "nan")])
+def test_bad_numbers_exit_2_naming_the_option(option, value):
+    args = [a for a in FAST if a not in ("--resolution", "32")] if option == "--texel-density" else FAST
+    r = run(*args, option, value)
+    assert r.returncode == 2 and option in r.stderr and "choose_resolution" not in r.stderr, r.stderr
+
+
+def test_preview_without_a_camera_fails_before_any_output(blender, tmp_path):
+    blender.ops.wm.read_factory_settings(use_empty=True)
+    blender.ops.mesh.primitive_plane_add(size=6)
+    blender.ops.object.light_add(type="POINT", location=(0, 0, 3))
+    blend = tmp_path / "nocam.blend"
+    blender.ops.wm.save_as_mainfile(filepath=str(blend))
+    r = run("--blend", blend, "--output", tmp_path / "maps", "--preview-png", tmp_path / "p.png", *FAST)
+    assert r.returncode == 2 and "camera" in r.stderr
+    assert not (tmp_path / "maps").exists() and not (tmp_path / "p.png").exists()
+
+
+def test_too_many_photons_are_refused_with_a_memory_estimate(scene_blend, tmp_path):
+    blend = scene_blend()
+    r = run("--blend", blend, "--output", tmp_path / "maps", *FAST, "--photons", "1000000000000")
+    assert r.returncode == 1 and "Photons" in r.stderr and "GiB of memory" in r.stderr, r.stderr
+    assert "MemoryError" not in r.stderr and not (tmp_path / "maps").exists()
+
+
+def test_ctrl_c_cancels_exits_130_and_leaves_outputs_as_they_were(scene_blend, tmp_path):
+    import signal
+    import time
+
+    blend = scene_blend()
+    out = tmp_path / "maps"
+    assert run("--blend", blend, "--output", out, *FAST).returncode == 0
+    before = folder_state(out)
+    slow = ["--quality", "CUSTOM", "--photons", "50000000", "--resolution", "32", "--threads", "1", "--seed", "5"]
+    p = subprocess.Popen([sys.executable, str(SCRIPT), "--blend", str(blend), "--output", str(out), *slow],
+                         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    for line in p.stdout:  # wait until the bake is under way
+        if "photons" in line.lower() and ".." in line:
+            break
+    time.sleep(0.5)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err
+    assert "cancel" in err and folder_state(out) == before

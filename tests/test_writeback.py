@@ -117,8 +117,8 @@ def test_bake_adds_uv_map_images_and_copies_leaving_user_data_untouched(blender,
         assert image[writeback.OWNER] == obj
         assert tuple(image.size) == (RES, RES) and image.is_float
         assert image.colorspace_settings.name == "Non-Color"
-        assert (out / f"PDIC_{obj}.exr").is_file()
-        assert image.filepath == f"//pdic_lightmaps/PDIC_{obj}.exr"
+        assert (out / f"scene.PDIC_{obj}.exr").is_file()
+        assert image.filepath == f"//pdic_lightmaps/scene.PDIC_{obj}.exr"
     # material copies, assigned through OBJECT-linked slots; the wedge (no slots) got none
     assert floor.material_slots[0].link == "OBJECT"
     assert floor.material_slots[0].material.name == "FloorMat.PDIC.Floor"
@@ -135,7 +135,7 @@ def test_bake_adds_uv_map_images_and_copies_leaving_user_data_untouched(blender,
     doc = manifest.read_manifest(out)
     entries = {e["name"]: e for e in doc["objects"]}
     assert set(entries) == {"Floor", "Box", "BallA", "BallB", "Wedge"}
-    assert entries["Floor"]["image"] == "PDIC_Floor.exr" and entries["Floor"]["uv_map"] == LIGHTMAP_UV
+    assert entries["Floor"]["image"] == "scene.PDIC_Floor.exr" and entries["Floor"]["uv_map"] == LIGHTMAP_UV
     assert entries["Floor"]["width"] == RES and doc["settings"]["photons"] == 4000
     assert any("Wedge" in w and "no material slots" in w for w in doc["warnings"])
 
@@ -187,8 +187,8 @@ def test_rebake_replaces_outputs_without_accumulating(blender, registered, tmp_p
         assert second[kind] == first[kind]
     assert second["objects"] == first["objects"]
     assert sorted(os.listdir(tmp_path / "pdic_lightmaps")) == sorted(
-        [f"PDIC_{o}.exr" for o in ("Floor", "Box", "BallA", "BallB", "Wedge")]
-        + ["pdic_manifest.json", "pdic_records.npz"])
+        [f"scene.PDIC_{o}.exr" for o in ("Floor", "Box", "BallA", "BallB", "Wedge")]
+        + ["pdic_manifest.json", "scene.pdic_records.Scene.npz"])
     blender.ops.pdic.clear()
     assert snapshot(blender) == before
 
@@ -282,7 +282,7 @@ def test_failed_rebake_keeps_previous_outputs_and_files(blender, registered, tmp
     save(blender, tmp_path)
     assert bake(blender) == {"FINISHED"}
     first = snapshot(blender)
-    exr = (tmp_path / "pdic_lightmaps" / "PDIC_Floor.exr").read_bytes()
+    exr = (tmp_path / "pdic_lightmaps" / "scene.PDIC_Floor.exr").read_bytes()
     doc = (tmp_path / "pdic_lightmaps" / "pdic_manifest.json").read_text()
     j = job_module.BakeJob(blender.context, _settings(blender))
     j.prepare()
@@ -291,11 +291,11 @@ def test_failed_rebake_keeps_previous_outputs_and_files(blender, registered, tmp
     with pytest.raises(job_module.BakeError, match="Box"):
         j.finish()
     assert snapshot(blender) == first
-    assert (tmp_path / "pdic_lightmaps" / "PDIC_Floor.exr").read_bytes() == exr
+    assert (tmp_path / "pdic_lightmaps" / "scene.PDIC_Floor.exr").read_bytes() == exr
     assert (tmp_path / "pdic_lightmaps" / "pdic_manifest.json").read_text() == doc
     assert sorted(p.name for p in (tmp_path / "pdic_lightmaps").iterdir()) == sorted(
-        [f"PDIC_{o}.exr" for o in ("Floor", "Box", "BallA", "BallB", "Wedge")]
-        + ["pdic_manifest.json", "pdic_records.npz"])
+        [f"scene.PDIC_{o}.exr" for o in ("Floor", "Box", "BallA", "BallB", "Wedge")]
+        + ["pdic_manifest.json", "scene.pdic_records.Scene.npz"])
 
 
 def test_nothing_to_bake_says_why(blender, registered, tmp_path):
