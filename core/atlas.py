@@ -27,7 +27,7 @@ import numpy as np
 import xatlas
 
 from .dilate import dilate
-from .unwrap import GOOD_FILL, MAX_PACK_ATTEMPTS, _pack_options
+from .xatlas_charts import GOOD_FILL, MAX_PACK_ATTEMPTS, pack_options
 
 WINDOW_MARGIN = 1
 """Texels around an object's charts inside its window: conservative rasterisation touches the
@@ -192,7 +192,7 @@ def _pack(inputs: list, padding: int, texels_per_unit: float) -> "xatlas.Atlas":
         atlas.add_mesh(inp.corner_positions(), faces, None, inp.uv_chart.reshape(-1, 2))
     options = xatlas.ChartOptions()
     options.use_input_mesh_uvs = True
-    atlas.generate(options, _pack_options(0, padding, texels_per_unit))  # resolution 0: one atlas
+    atlas.generate(options, pack_options(0, padding, texels_per_unit))  # resolution 0: one atlas
     return atlas
 
 
@@ -202,7 +202,7 @@ def _side(atlas) -> int:
 
 def _fit_one_atlas(inputs: list, size: int, padding: int) -> float:
     """The largest texels-per-unit tried whose single atlas fits ``size``, stopping at
-    :data:`~core.unwrap.GOOD_FILL` of the side (packing is not linear in the scale:
+    :data:`~core.xatlas_charts.GOOD_FILL` of the side (packing is not linear in the scale:
     padding and 4x4 block alignment are fixed, hence a search)."""
     area = sum(i.area() for i in inputs)
     tpu = 0.7 * size / math.sqrt(max(area, 1e-30))  # ~50 % fill to start

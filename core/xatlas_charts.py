@@ -82,7 +82,7 @@ def layout(p, tri, resolution: int, padding: int, poly, max_resolution: int = 0,
     # -- pass 1: charts (xatlas estimates texels per unit for the resolution)
     atlas = xatlas.Atlas()
     atlas.add_mesh(p.astype(np.float32), tri.astype(np.uint32))
-    atlas.generate(chart_options(variant), _pack_options(resolution, padding))
+    atlas.generate(chart_options(variant), pack_options(resolution, padding))
     xref, index, uv = atlas[0]
     index = index.astype(np.int64)
     xref = xref.astype(np.int64)
@@ -215,7 +215,7 @@ def _pack_growing(p, xref, index, uv_texel, valid, resolution, padding, tpu, max
             resolution = grown
 
 
-def _pack_options(resolution: int, padding: int, texels_per_unit: float = 0.0) -> "xatlas.PackOptions":
+def pack_options(resolution: int, padding: int, texels_per_unit: float = 0.0) -> "xatlas.PackOptions":
     po = xatlas.PackOptions()
     po.resolution = resolution
     po.padding = padding
@@ -241,7 +241,7 @@ def _repack(p, xref, index, uv_texel, valid, resolution, padding, tpu):
     for _ in range(MAX_PACK_ATTEMPTS):
         atlas = xatlas.Atlas()
         atlas.add_mesh(positions, faces, None, uvs)
-        atlas.generate(chart_options, _pack_options(0, padding, tpu))  # 0: one atlas, any size
+        atlas.generate(chart_options, pack_options(0, padding, tpu))  # 0: one atlas, any size
         size = max(atlas.width, atlas.height)
         if size <= resolution:
             if tpu > best_tpu:
