@@ -1,97 +1,113 @@
 """Atlas mode of a bake: many objects share a few light-map images (:mod:`core.atlas`).
 
-The job calls three hooks, one per step:
+The job calls one hook per step, each on the step's thread:
 
-1. :func:`unwrap_into_atlases` (prepare): each mesh's own unwrap (cached), then all
-   charts packed together; ``PDIC_Lightmap`` gets the atlas UVs, the job's
-   resolutions become each object's *window* of its atlas.
-2. :func:`window_scene` (prepare, after extraction): each target's UVs re-expressed
-   in its window, so the unchanged pipeline bakes the window's texels.
-3. :func:`atlas_images` (finish): covered window texels copied into the atlases,
-   the atlases dilated once.
+1. :func:`density_scales` (choose, main): each object's texel-density factor from
+   its resolution override.
+2. :func:`unwrap_into_atlases` (unwrap, worker, no bpy): each mesh's own unwrap
+   (cached), then all charts packed together; the job's ``uv_loops`` get the atlas
+   UVs (the extract step writes them into ``PDIC_Lightmap``) and its resolutions
+   become each object's *window* of its atlas.
+3. :func:`window_scene` (extract, main, after extraction): each target's UVs
+   re-expressed in its window, so the unchanged pipeline bakes the window's texels.
+4. :func:`write_atlas_images` (finish, main): covered window texels copied into the
+   atlases, the atlases dilated once and written like per-object maps (a re-bake
+   under temporary names); :func:`swap_atlas_images` gives them their final names
+   when the job swaps its outputs in.
 """
 from __future__ import annotations
 
 from dataclasses import replace
 
-import numpy as np
+import bpy
 
 from ..core import atlas as core_atlas
 from ..core import unwrap
-from . import uvmaps
+from ..core.executor import Progress
+from . import writeback
 
 ATLAS_PREFIX = "Atlas"
-"""Atlas images are ``PDIC_Atlas<index>`` (``writeback.image_name`` of ``Atlas<index>``)."""
+"""Atlas images are ``PDIC_Atlas<index>`` (``writeback.image_name`` of ``Atlas<index>``), owned by
+``Atlas<index>``; their files ``<blend>.PDIC_Atlas<index>.exr``."""
 CHART_RESOLUTION = 256
-"""Resolution of each object's own unwrap in atlas mode: only its charts are kept (doubled
-until xatlas packs them, as Sponza's many small charts need)."""
+"""Resolution of each object's own unwrap in atlas mode: only its charts are kept (the map
+grows until xatlas packs them, as Sponza's many small charts need)."""
 
 
 def atlas_key(index: int) -> str:
     return f"{ATLAS_PREFIX}{index}"
 
 
-def _object_charts(mesh, tris, scale, padding: int, cache_dir, max_resolution: int):
-    """The mesh's own unwrap (cached by content): its charts, at any packing."""
-    res = CHART_RESOLUTION
-    while True:
-        try:
-            return unwrap.unwrap(tris.positions * scale, tris.triangles, res, padding, cache_dir=cache_dir,
-                                 triangle_polygon=tris.polygon)
-        except RuntimeError:
-            if res >= max_resolution:
-                raise
-            res = min(2 * res, max_resolution)
+def object_charts(tris, scale, padding: int, cache_dir, max_resolution: int, **hooks) -> unwrap.UnwrapResult:
+    """The mesh's own unwrap (cached by content) at world scale ``scale``: its charts, at any packing.
 
-
-def unwrap_into_atlases(job, by_mesh: dict, triangles: dict) -> core_atlas.AtlasLayout:
-    """Hook 1: pack every bake object into ``job.atlas_size`` atlases and write the UVs.
-
-    Objects sharing a mesh cannot share one atlas place (they would share texels):
-    raises ValueError naming them. Per-object resolution overrides scale the object's
-    texel density relative to the others (override / the size its area would get).
+    hooks : ``cancelled`` and ``progress`` of :func:`core.unwrap.unwrap`.
     """
-    shared = [users for users in by_mesh.values() if len(users) > 1]
-    if shared:
-        names = ", ".join(o.name for o in shared[0])
-        raise ValueError(f"atlas mode: objects {names} share mesh {shared[0][0].data.name!r}; each needs its own "
-                         f"place in the atlas: make the mesh single-user (Object > Relations) or bake without atlases")
+    return unwrap.unwrap(tris.positions * scale, tris.triangles, CHART_RESOLUTION, padding, cache_dir=cache_dir,
+                         triangle_polygon=tris.polygon, max_resolution=max(max_resolution, CHART_RESOLUTION),
+                         **hooks)
+
+
+def refuse_shared_meshes(mesh_users: dict) -> None:
+    """Objects sharing a mesh cannot share one atlas place (they would share texels): ValueError naming them."""
+    for mesh_name, users in mesh_users.items():
+        if len(users) > 1:
+            raise ValueError(f"atlas mode: objects {', '.join(users)} share mesh {mesh_name!r}; each needs its own "
+                             f"place in the atlas: make the mesh single-user (Object > Relations) or bake without "
+                             f"atlases")
+
+
+def density_scales(job) -> dict:
+    """Hook 1 (choose, main thread): object name -> texel density relative to the others
+    (a resolution override / the size its area would get; 1 without override)."""
+    scales = {}
+    for mesh_name, (name,) in job.mesh_users.items():
+        override = getattr(getattr(bpy.data.objects[name], "pdic", None), "resolution", 0)
+        scales[name] = 1.0
+        if override:
+            s, tris = job.settings, job.triangles[mesh_name]
+            auto = unwrap.choose_resolution(tris.surface_area(tuple(job.scales[mesh_name])), s.texel_density or 1.0,
+                                            s.default_resolution, s.min_resolution, s.max_resolution)
+            scales[name] = float(override) / max(auto, 1)
+    return scales
+
+
+def unwrap_into_atlases(job, progress: Progress, hooks) -> core_atlas.AtlasLayout:
+    """Hook 2 (unwrap, worker thread, no bpy): pack every bake object into ``job.atlas_size`` atlases.
+
+    Fills ``job.uv_loops`` (per mesh), ``job.resolutions`` (the windows) and ``job.unwraps``;
+    ``hooks(label, fraction)`` gives the cancel/progress arguments of ``core.unwrap.unwrap``.
+    """
     s = job.settings
     inputs, results = [], {}
-    for mesh, (obj,) in by_mesh.items():
-        tris = triangles[mesh]
-        scale = np.asarray(tuple(obj.matrix_world.to_scale()), np.float64)
+    for i, (mesh_name, (name,)) in enumerate(job.mesh_users.items()):
+        tris, scale = job.triangles[mesh_name], job.scales[mesh_name]
         try:
-            result = _object_charts(mesh, tris, scale, s.padding, job.cache_dir, s.max_resolution)
-        except (ValueError, RuntimeError) as e:
-            raise ValueError(f"cannot unwrap mesh {mesh.name!r} (object {obj.name!r}): {e}") from e
-        results[obj.name] = (mesh, tris, result)
-        inputs.append(core_atlas.AtlasInput(obj.name, tris.positions * scale, tris.triangles, result.uv,
-                                            _density_scale(obj, tris, scale, s)))
+            result = object_charts(tris, scale, s.padding, job.cache_dir, s.max_resolution,
+                                   **hooks(mesh_name, i / len(job.mesh_users)))
+        except (ValueError, RuntimeError) as e:  # bad geometry (DegenerateMeshError), or xatlas failing
+            raise ValueError(f"cannot unwrap mesh {mesh_name!r} (object {name!r}): {e}") from e
+        job.warnings += list(result.warnings)
+        results[name] = (mesh_name, tris, result)
+        inputs.append(core_atlas.AtlasInput(name, tris.positions * scale, tris.triangles, result.uv,
+                                            job.atlas_density.get(name, 1.0)))
+        progress.update((i + 1) / (len(job.mesh_users) + 1))
     layout = core_atlas.pack_atlases(inputs, job.atlas_size, s.padding, s.texel_density)
     for p in layout.placements:
-        mesh, tris, result = results[p.name]
+        mesh_name, tris, result = results[p.name]
         uv_loop, conflicts = unwrap.loop_uvs(p.uv, tris.loops, tris.loop_count)
         if conflicts:
-            job.warnings.append(f"mesh {mesh.name!r}: {conflicts} polygon corners got split UVs")
-        uvmaps.write_lightmap_uv(mesh, uv_loop, job.txn)
+            job.warnings.append(f"mesh {mesh_name!r}: {conflicts} polygon corners got split UVs")
+        job.uv_loops[mesh_name] = uv_loop
         job.resolutions[p.name] = (p.window[2], p.window[3])
         job.unwraps[p.name] = {"charts": result.chart_count, "unwrap_cached": result.from_cache,
                                "atlas": p.atlas, "atlas_window": list(p.window)}
+    progress.update(1.0)
     return layout
 
 
-def _density_scale(obj, tris, scale, settings) -> float:
-    override = getattr(getattr(obj, "pdic", None), "resolution", 0)
-    if not override:
-        return 1.0
-    auto = unwrap.choose_resolution(tris.surface_area(tuple(scale)), settings.texel_density or 1.0,
-                                    settings.default_resolution, settings.min_resolution, settings.max_resolution)
-    return float(override) / max(auto, 1)
-
-
 def window_scene(scene, layout: core_atlas.AtlasLayout):
-    """Hook 2: the extracted scene with each target's atlas UVs mapped into its window."""
+    """Hook 3 (extract): the extracted scene with each target's atlas UVs mapped into its window."""
     targets = []
     for t in scene.targets:
         p = layout.placement(t.name)
@@ -101,34 +117,49 @@ def window_scene(scene, layout: core_atlas.AtlasLayout):
 
 
 def atlas_images(layout: core_atlas.AtlasLayout, result, padding: int) -> tuple[dict, int]:
-    """Hook 3: atlas key -> (size, size, 4) float32 RGBA, and texels two objects both cover (0)."""
+    """Atlas key -> (size, size, 4) float32 RGBA, and texels two objects both cover (0)."""
     images, conflicts = core_atlas.composite(layout, result.lightmaps, result.coverage, padding + 2)
     return {atlas_key(i): image for i, image in enumerate(images)}, conflicts
 
 
-def write_atlas_images(job, plan) -> dict:
-    """Hook 3 (finish): composite, write one image per atlas; object name -> (image, relpath, atlas pixels).
-
-    A re-bake writes under a temporary name; :func:`commit_atlas_images` swaps it in.
-    """
-    from . import writeback
-
+def write_atlas_images(job) -> dict:
+    """Hook 4 (finish): composite and write one image per atlas, each file through
+    ``writeback.write_image`` (backed up, undone on rollback); a re-bake writes the
+    datablock under a temporary name. Returns atlas key -> (image, relpath, pixels)."""
     images, conflicts = atlas_images(job.atlas_layout, job.result, job.settings.padding)
     if conflicts:  # a packing bug, never the user's input
         raise ValueError(f"atlas: {conflicts} texels are covered by two objects (please report this scene)")
     written = {}
     for key, pixels in images.items():
-        temp = writeback.image_name(key) + ".pdic_new" if writeback.owned_images(key) else None
-        image, relpath = writeback.write_image(key, pixels, plan, job.image_format, job.txn, name=temp)
+        pixels = job._storable(key, pixels)
+        rebake = bool(writeback.owned_images(key))
+        temp = writeback.image_name(key) + writeback.TEMPORARY_SUFFIX if rebake else None
+        image, relpath = writeback.write_image(key, pixels, job.plan, job.image_format, job.txn, name=temp)
         written[key] = (image, relpath, pixels)
-    job.atlas_written = written
-    return {p.name: written[atlas_key(p.atlas)] for p in job.atlas_layout.placements}
+    return written
 
 
-def commit_atlas_images(job) -> None:
-    """Replace earlier atlas images by the new ones (names ``PDIC_Atlas<i>``)."""
-    from . import writeback
+def atlas_of(name: str, layout, written: dict):
+    """The ``(image, relpath, pixels)`` of the atlas holding object ``name``; None without atlases."""
+    return None if layout is None else written[atlas_key(layout.placement(name).atlas)]
 
-    for key, (image, _, _) in job.atlas_written.items():
-        writeback.remove_outputs(key, keep={image})
-        image.name = writeback.image_name(key)
+
+def atlases_in_use(excluded: set) -> set:
+    """Keys of the atlases whose images material copies of objects not in ``excluded`` (names) show."""
+    keys = set()
+    for copy in writeback.owned_materials():
+        owner = writeback.owner_of(copy)
+        if owner is None or owner.name in excluded or copy.node_tree is None:
+            continue
+        for node in copy.node_tree.nodes:
+            image = getattr(node, "image", None)
+            if writeback.is_pdic(image) and str(image[writeback.OWNER]).startswith(ATLAS_PREFIX):
+                keys.add(image[writeback.OWNER])
+    return keys
+
+
+def swap_atlas_images(written: dict, txn, warnings: list) -> None:
+    """Retire the previous images of the atlases just written and give the new ones their names (undoable)."""
+    for key, (image, _, _) in written.items():
+        writeback.retire_outputs(key, {image}, txn, warnings)
+        writeback.rename(image, writeback.image_name(key), txn)

@@ -5,10 +5,13 @@ step       thread       what
 =========  ===========  ========================================================
 choose     main (bpy)   validate; choose objects, output folder, resolutions;
                         estimate memory; read each target mesh's triangles
-unwrap     worker       unwrap each mesh (pure core; progress, cancel)
+unwrap     worker       unwrap each mesh, or pack them into atlases (pure core;
+                        progress, cancel)
 extract    main (bpy)   write the UV maps ``PDIC_Lightmap``; extract the core scene
+                        (atlas mode: each target baked over its atlas window)
 compute    worker       ``core.pipeline.bake`` (pure core; progress, cancel)
-finish     main (bpy)   write images, manifest, records; swap in the material copies
+finish     main (bpy)   write images (or atlases), manifest, records; swap in the
+                        material copies
 =========  ===========  ========================================================
 
 :class:`JobRunner` runs the steps: all on one thread (the headless script, a
@@ -22,12 +25,12 @@ so an error or a cancel at any point leaves the .blend as it was.
 """
 from __future__ import annotations
 
-import inspect
 import json
 import os
 import threading
 import time
 from dataclasses import asdict, dataclass, field
+from functools import partial
 from pathlib import Path
 
 import bpy
@@ -39,7 +42,7 @@ from ..core import unwrap
 from ..core.executor import Cancelled, Progress
 from ..core.scene import SceneError
 from ..core.settings import BakeSettings
-from . import overlay, preferences, uvmaps, writeback
+from . import atlas_bake, overlay, preferences, uvmaps, writeback
 from .extract import extract_scene
 
 
@@ -254,12 +257,15 @@ class BakeJob:
     output_folder : Blender path; default ``scene.pdic.output_folder`` or ``//pdic_lightmaps/``.
     image_format : "EXR_HALF" or "EXR_FLOAT"; default from ``scene.pdic``.
     cache_dir : unwrap cache folder (None: :func:`default_cache_dir`, from the add-on preferences).
+    atlas_size : > 0 packs all objects into shared atlases of this size (:mod:`.atlas_bake`); 0 = a map
+        each; default ``scene.pdic.atlas_size``.
     """
 
     STEPS = (("choose", MAIN), ("unwrap", WORKER), ("extract", MAIN), ("compute", WORKER), ("finish", MAIN))
 
     def __init__(self, context, settings: BakeSettings, objects=None, selected_only: bool = False,
-                 output_folder: str | None = None, image_format: str | None = None, cache_dir=None):
+                 output_folder: str | None = None, image_format: str | None = None, cache_dir=None,
+                 atlas_size: int | None = None):
         self.scene = context.scene
         self.view_layer = context.view_layer
         self.context = context
@@ -287,6 +293,9 @@ class BakeJob:
         self.extraction = None
         self.result = None
         self.report: BakeReport | None = None
+        self.atlas_size = int(atlas_size if atlas_size is not None else getattr(props, "atlas_size", 0))
+        self.atlas_density: dict = {}   # object name -> texel density factor (atlas mode)
+        self.atlas_layout = None        # core.atlas.AtlasLayout (atlas mode), from the unwrap step
 
     # ----------------------------------------------------------------- errors and the step wrapper
     @staticmethod
@@ -328,6 +337,9 @@ class BakeJob:
             raise BakeError("nothing to bake: no selected mesh has a triangle with area")
         for mesh_name in self.meshes:
             self._choose_resolution(mesh_name)
+        if self.atlas_size:
+            atlas_bake.refuse_shared_meshes(self.mesh_users)
+            self.atlas_density = atlas_bake.density_scales(self)
         largest = max(self.resolutions, key=lambda n: self.resolutions[n][0])
         check_memory(self.settings, self.texel_count, f"{largest!r} at {self.resolutions[largest][0]}^2")
         if self.settings.indirect and self.settings.photons == 0:
@@ -417,25 +429,36 @@ class BakeJob:
 
     # ----------------------------------------------------------------- step 2: unwrap (worker, no bpy)
     def _unwrap(self, progress: Progress | None = None) -> None:
-        """Unwrap each mesh once (positions scaled like its first user in the world)."""
+        """Unwrap each mesh once (positions scaled like its first user in the world), or (atlas
+        mode) pack every object's charts into shared atlases."""
         progress = progress or Progress()
         progress.begin("Unwrapping")
-        extra = _unwrap_hooks(progress)
+        if self.atlas_size:
+            self.atlas_layout = atlas_bake.unwrap_into_atlases(self, progress, partial(_unwrap_hooks, progress))
+            return
+        s = self.settings
         for i, (mesh_name, users) in enumerate(self.mesh_users.items()):
             tris, res = self.triangles[mesh_name], self.resolutions[users[0]][0]
             try:
-                result = unwrap.unwrap(tris.positions * self.scales[mesh_name], tris.triangles, res,
-                                       self.settings.padding, cache_dir=self.cache_dir,
-                                       triangle_polygon=tris.polygon, **extra)
+                result = unwrap.unwrap(tris.positions * self.scales[mesh_name], tris.triangles, res, s.padding,
+                                       cache_dir=self.cache_dir, triangle_polygon=tris.polygon,
+                                       max_resolution=max(s.max_resolution, res),
+                                       **_unwrap_hooks(progress, mesh_name, i / len(self.meshes)))
                 uv_loop, conflicts = unwrap.loop_uvs(result.uv, tris.loops, tris.loop_count)
-            except (ValueError, RuntimeError, ZeroDivisionError) as e:  # bad geometry, or xatlas failing to pack
+            except (ValueError, RuntimeError) as e:  # bad geometry (DegenerateMeshError), or xatlas failing to pack
                 raise BakeError(f"cannot unwrap mesh {mesh_name!r} (object {users[0]!r}): {e}") from e
+            self.warnings += list(result.warnings)
+            if result.resolution != res:  # the charts did not fit: the map grew until they did
+                self.warnings.append(f"mesh {mesh_name!r}: its charts do not fit {res}x{res}; light map "
+                                     f"{result.resolution}x{result.resolution} instead")
+                for name in users:
+                    self.resolutions[name] = (result.resolution, result.resolution)
             if conflicts:
                 self.warnings.append(f"mesh {mesh_name!r}: {conflicts} polygon corners got split UVs")
             self.uv_loops[mesh_name] = uv_loop
             for name in users:
                 self.unwraps[name] = {"charts": result.chart_count, "utilization": round(result.utilization, 4),
-                                      "unwrap_cached": result.from_cache}
+                                      "unwrap_cached": result.from_cache, "resolution_requested": res}
             progress.update((i + 1) / len(self.meshes))
 
     # ----------------------------------------------------------------- step 3: extract (main)
@@ -456,6 +479,8 @@ class BakeJob:
             targets = {o.name for o in self.objects}
             writeback.set_shading([o for o in showing if o.name not in targets], baked=True)
         self.warnings += self.extraction.warnings  # extraction names degenerate triangles and dark scenes
+        if self.atlas_layout is not None:
+            self.extraction.scene = atlas_bake.window_scene(self.extraction.scene, self.atlas_layout)
 
     @property
     def texel_count(self) -> int:
@@ -470,17 +495,19 @@ class BakeJob:
         store = bake_cache.BakeCache(self.bake_cache_dir, memory=False)
         self.result = pipeline.bake(self.extraction.scene, self.settings, progress, cache=store)
         store.prune()
+        self.warnings += store.warnings  # e.g. a full cache folder: the bake went on without it
 
     # ----------------------------------------------------------------- step 5: finish (main)
     def _finish(self) -> None:
         start = time.perf_counter()
         writeback.ensure_directory(self.plan, self.txn)
         entries, new_outputs = [], []
+        atlases = atlas_bake.write_atlas_images(self) if self.atlas_layout is not None else {}
         for name in self.extraction.target_objects:
             obj = bpy.data.objects.get(name)
             if obj is None:
                 raise BakeError(f"object {name!r} was deleted or renamed during the bake")
-            entry, image, copies = self._write_object(obj)
+            entry, image, copies = self._write_object(obj, atlas_bake.atlas_of(name, self.atlas_layout, atlases))
             entries.append(entry)
             new_outputs.append((obj, image, copies))
         self.timings["write_images"] = time.perf_counter() - start
@@ -488,25 +515,30 @@ class BakeJob:
         manifest_path = self._write_manifest(entries, stats)
         records_path = self._write_records()
         self._remember(stats, entries, manifest_path, records_path)
-        self._swap_outputs(new_outputs)
+        self._swap_outputs(new_outputs, atlases)
         self.txn.commit()
         self.report = BakeReport(entries, list(self.warnings), stats, self.plan, manifest_path, records_path)
 
-    def _write_object(self, obj) -> tuple[dict, object, list]:
-        """One object's image file and material copies (new datablocks, not shown yet); its manifest entry."""
+    def _write_object(self, obj, atlas=None) -> tuple[dict, object, list]:
+        """One object's image file (or, atlas mode, its atlas's ``(image, relpath, pixels)``, written) and
+        material copies (new datablocks, not shown yet); its manifest entry."""
         name = obj.name
-        pixels = self._storable(name, self.result.lightmaps[name])
         rebake = bool(writeback.owned_images(obj) or writeback.owned_materials(obj))
-        temp = writeback.image_name(name) + writeback.TEMPORARY_SUFFIX if rebake else None
-        image, relpath = writeback.write_image(name, pixels, self.plan, self.image_format, self.txn, name=temp)
+        if atlas is None:
+            pixels = self._storable(name, self.result.lightmaps[name])
+            temp = writeback.image_name(name) + writeback.TEMPORARY_SUFFIX if rebake else None
+            image, relpath = writeback.write_image(name, pixels, self.plan, self.image_format, self.txn, name=temp)
+        else:
+            image, relpath, pixels = atlas
         copies, warnings = writeback.build_copies(obj, image, self.txn, temporary=rebake)
         self.warnings += warnings
         h, w = pixels.shape[:2]
         entry = dict(
             name=name, blend=os.path.basename(bpy.data.filepath), image=relpath,
-            image_name=writeback.image_name(name), uv_map=uvmaps.LIGHTMAP_UV, width=int(w), height=int(h),
+            image_name=image.name.removesuffix(writeback.TEMPORARY_SUFFIX), uv_map=uvmaps.LIGHTMAP_UV,
+            width=int(w), height=int(h),
             format="OPEN_EXR", color_depth=writeback.FORMATS[self.image_format], color_space="Non-Color",
-            channels="RGBA", texels=int((pixels[..., 3] > 0).sum()),
+            channels="RGBA", texels=int((self.result.lightmaps[name][..., 3] > 0).sum()),
             materials=[c.name.removesuffix(writeback.TEMPORARY_SUFFIX) for c in copies], **self.unwraps.get(name, {}))
         return entry, image, copies
 
@@ -560,16 +592,20 @@ class BakeJob:
         writeback.replace_file(path, lambda p: overlay.save_records(p, *fields, origin, self.settings.a), self.txn)
         return path
 
-    def _swap_outputs(self, new_outputs: list) -> None:
+    def _swap_outputs(self, new_outputs: list, atlases: dict) -> None:
         """Replace each object's previous outputs by the new ones and show them; every change is
         undoable until the commit, which deletes the replaced datablocks."""
         for obj, image, copies in new_outputs:
             writeback.retire_outputs(obj, {image, *copies}, self.txn, self.warnings)
             writeback.assign_copies(obj, copies, self.txn)
-            writeback.rename(image, writeback.image_name(obj.name), self.txn)
+            if not atlases:
+                writeback.rename(image, writeback.image_name(obj.name), self.txn)
             for copy in copies:
                 writeback.rename(copy, copy.name.removesuffix(writeback.TEMPORARY_SUFFIX), self.txn)
-        for owner in writeback.orphaned_owners():  # outputs of deleted objects
+        atlas_bake.swap_atlas_images(atlases, self.txn, self.warnings)
+        # Atlases have no object: one still shown by an object not baked now is kept.
+        kept = set(atlases) | atlas_bake.atlases_in_use({obj.name for obj, _, _ in new_outputs})
+        for owner in writeback.orphaned_owners() - kept:  # outputs of deleted objects, unused atlases
             writeback.retire_outputs(owner, set(), self.txn, self.warnings)
 
     def _remember(self, stats: dict, entries: list, manifest_path, records_path) -> None:
@@ -616,15 +652,14 @@ class BakeJob:
         return JobRunner(self, progress).run()
 
 
-def _unwrap_hooks(progress: Progress) -> dict:
-    """Cancel/progress arguments ``core.unwrap.unwrap`` accepts (it may run xatlas in a subprocess)."""
-    parameters = inspect.signature(unwrap.unwrap).parameters
-    hooks = {}
-    if "cancel" in parameters:
-        hooks["cancel"] = progress.cancel_requested.is_set
-    if "progress" in parameters:
-        hooks["progress"] = progress
-    return hooks
+def _unwrap_hooks(progress: Progress, mesh_name: str, fraction: float) -> dict:
+    """``core.unwrap.unwrap``'s cancel and progress arguments for one mesh: a cancel kills
+    its xatlas subprocess; its messages (e.g. a retry) become the stage, named by mesh."""
+    def note(message: str) -> None:
+        progress.begin(f"Unwrapping {mesh_name!r}: {message}")
+        progress.update(fraction)
+
+    return {"cancelled": progress.cancel_requested.is_set, "progress": note}
 
 
 # --------------------------------------------------------------------------- the runner

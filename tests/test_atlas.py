@@ -52,7 +52,7 @@ def object_inputs(objects, cache_dir) -> list:
     for obj in objects:
         tris = uvmaps.mesh_triangles(obj.data)
         scale = np.asarray(tuple(obj.matrix_world.to_scale()), np.float64)
-        result = atlas_bake._object_charts(obj.data, tris, scale, 2, cache_dir, 4096)
+        result = atlas_bake.object_charts(tris, scale, 2, cache_dir, 4096)
         inputs.append(atlas.AtlasInput(obj.name, tris.positions * scale, tris.triangles, result.uv))
     return inputs
 
@@ -181,7 +181,7 @@ def test_atlas_bake_gives_each_object_the_texels_it_gets_baked_alone(tmp_path, r
 
     from pdic.core import pipeline
     from pdic.core.settings import preset
-    from pdic.pdic_addon import atlas_bake
+    from pdic.pdic_addon import atlas_bake, writeback
     from pdic.pdic_addon.job import BakeJob
 
     bpy.ops.wm.open_mainfile(filepath=str(ROOT / "sample_blends" / "cornell_point.blend"))
@@ -202,10 +202,12 @@ def test_atlas_bake_gives_each_object_the_texels_it_gets_baked_alone(tmp_path, r
         assert np.array_equal(alone.direct[name], job.result.direct[name])
     # the manifest says which atlas image holds each object, and where
     manifest = json.loads(report.manifest_path.read_text())
+    filename = writeback.image_filename("Atlas0")  # cornell_point.PDIC_Atlas0.exr
     for entry in manifest["objects"]:
-        assert entry["image"] == "PDIC_Atlas0.exr" and entry["width"] == 256 and entry["atlas"] == 0
+        assert entry["image"] == filename and entry["width"] == 256 and entry["atlas"] == 0
+        assert entry["image_name"] == "PDIC_Atlas0"
         assert entry["atlas_window"] == list(layout.placement(entry["name"]).window)
-    assert (tmp_path / "maps" / "PDIC_Atlas0.exr").is_file()
+    assert (tmp_path / "maps" / filename).is_file()
 
 
 def test_atlas_mode_refuses_objects_sharing_a_mesh_and_leaves_the_file_unchanged(tmp_path, registered):

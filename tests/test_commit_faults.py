@@ -92,11 +92,19 @@ def _inject(monkeypatch, fail_at: int, after: bool) -> dict:
     return calls
 
 
-@pytest.mark.parametrize("first_bake, after", [pytest.param(False, False, id="first-bake"),
-                                               pytest.param(True, False, id="rebake"),
-                                               pytest.param(True, True, id="rebake-fault-after-step")])
-def test_exception_at_every_step_leaves_file_and_folder_unchanged(blender, registered, tmp_path, first_bake, after):
+@pytest.mark.parametrize("first_bake, after, atlas", [pytest.param(False, False, 0, id="first-bake"),
+                                                      pytest.param(True, False, 0, id="rebake"),
+                                                      pytest.param(True, True, 0, id="rebake-fault-after-step"),
+                                                      pytest.param(True, False, 128, id="atlas-rebake"),
+                                                      pytest.param(True, True, 128, id="atlas-rebake-fault-after-step")])
+def test_exception_at_every_step_leaves_file_and_folder_unchanged(blender, registered, tmp_path, first_bake, after,
+                                                                  atlas):
     _scene(blender, tmp_path)
+    if atlas:  # atlas mode: one shared image; objects sharing a mesh are refused, so the twin gets its own
+        twin = blender.data.objects["BallB"]
+        twin.data = twin.data.copy()
+        blender.context.scene.pdic.atlas_size = atlas
+        blender.ops.wm.save_mainfile()
     if first_bake:
         job_module.BakeJob(blender.context, to_settings(blender.context.scene.pdic)).run()
         blender.context.scene.pdic.seed = 9  # different maps: a leaked file would show
@@ -125,3 +133,4 @@ def test_exception_at_every_step_leaves_file_and_folder_unchanged(blender, regis
     if first_bake:
         expected |= {"retire_outputs", "_set_aside"}
     assert expected <= steps_seen
+    assert [i.name for i in writeback.owned_images("Atlas0")] == (["PDIC_Atlas0"] if atlas else [])

@@ -372,3 +372,59 @@ def test_linked_duplicate_that_cannot_be_rebaked_is_warned_about(blender, regist
     report = new_job(blender, objects=[a]).run()
     assert [e["name"] for e in report.objects] == ["BallA"]
     assert any("'BallB'" in w and "Bake Light Map off" in w and "no longer matches" in w for w in report.warnings)
+
+
+# --------------------------------------------------------------------------- 11. unwrap hooks and growth
+def test_unwrap_hooks_are_unwraps_own_keywords_and_carry_the_cancel():
+    import inspect
+
+    from pdic.core import unwrap
+
+    progress = Progress()
+    hooks = job_module._unwrap_hooks(progress, "Box", 0.5)
+    assert set(hooks) <= set(inspect.signature(unwrap.unwrap).parameters)
+    assert set(hooks) == {"cancelled", "progress"}
+    hooks["progress"]("unwrapping (xatlas)")
+    assert progress.stage == "Unwrapping 'Box': unwrapping (xatlas)" and progress.fraction == 0.5
+    assert hooks["cancelled"]() is False
+    progress.cancel()
+    assert hooks["cancelled"]() is True
+    with pytest.raises(Cancelled):  # a retry message after a cancel stops the unwrap too
+        hooks["progress"]("unwrapping again with chart options 1")
+
+
+def test_map_too_small_for_the_charts_grows_with_a_warning_in_report_and_manifest(blender, registered, tmp_path):
+    floor, box = floor_and_box(blender, tmp_path)
+    blender.ops.mesh.primitive_uv_sphere_add(radius=0.4, segments=24, ring_count=12, location=(1.5, 0, 0.4))
+    ball = blender.context.object
+    ball.name = "Ball"
+    ball.pdic.resolution = 12  # far too small for a 24x12 sphere's charts with 2 texels of padding
+    save(blender, tmp_path)
+    report = new_job(blender, objects=[ball]).run()
+    entry = report.objects[0]
+    assert entry["resolution_requested"] == 12 and entry["width"] > 12
+    grew = [w for w in report.warnings if f"mesh {ball.data.name!r}" in w and "do not fit 12x12" in w]
+    assert len(grew) == 1 and f"{entry['width']}x{entry['width']} instead" in grew[0]
+    assert tuple(writeback.owned_images(ball)[0].size) == (entry["width"], entry["height"])
+    doc = manifest.read_manifest(tmp_path / OUT)
+    assert grew[0] in doc["warnings"]
+
+
+# --------------------------------------------------------------------------- atlas mode
+def test_atlas_rebakes_keep_one_atlas_image_and_retire_it_only_when_unused(blender, registered, tmp_path):
+    floor, box = floor_and_box(blender, tmp_path)
+    new_job(blender, atlas_size=128).run()
+    atlas_images = lambda: sorted(i.name for i in writeback.owned_images("Atlas0"))  # noqa: E731
+    assert atlas_images() == ["PDIC_Atlas0"] and not writeback.owned_images(floor)
+    blender.context.scene.pdic.seed = 3
+    report = new_job(blender, atlas_size=128).run()  # re-bake: the new atlas replaces the old one
+    assert atlas_images() == ["PDIC_Atlas0"] and report.objects[0]["image_name"] == "PDIC_Atlas0"
+    files = sorted(p.name for p in (tmp_path / OUT).iterdir() if p.suffix == ".exr")
+    assert files == [writeback.image_filename("Atlas0")]
+    new_job(blender, objects=[box]).run()  # a map of its own for Box; Floor still shows the atlas
+    assert atlas_images() == ["PDIC_Atlas0"] and writeback.owned_images(box)
+    new_job(blender, objects=[floor]).run()  # nothing shows the atlas any more: retired
+    assert atlas_images() == [] and writeback.owned_images(floor)
+    doc = manifest.read_manifest(tmp_path / OUT)
+    assert sorted(e["name"] for e in doc["objects"]) == ["Box", "Floor"]
+    assert not any("atlas" in e for e in doc["objects"])
