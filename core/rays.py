@@ -29,6 +29,9 @@ RELATIVE_EPSILON = 1e-5
 # Below this many rays a batch is traced on the calling thread: the pool's
 # hand-off costs more than it saves.
 MIN_PARALLEL_BATCH = 65_536
+# Transmissive layers a shadow ray or photon path crosses before the next one counts
+# as opaque: Cycles' default Transparent bounce limit (Light Paths > Max Bounces).
+TRANSPARENT_MAX_LAYERS = 8
 
 
 @dataclass(frozen=True)
@@ -57,9 +60,13 @@ class RayCaster:
     positions : (T, 3, 3) float64 scene-local triangle corners.
     extent : scene diagonal, sets :attr:`epsilon`; defaults to the triangles' own.
     executor : where chunks run; a serial one by default.
+    transmission : (T,) probability in [0, 1] that an occlusion query passes through each
+        triangle (``Geometry.transmission``); None or all zero: every triangle is opaque.
+        Closest-hit queries always stop at the first triangle.
     """
 
-    def __init__(self, positions: np.ndarray, extent: float | None = None, executor: Executor | None = None):
+    def __init__(self, positions: np.ndarray, extent: float | None = None, executor: Executor | None = None,
+                 transmission: np.ndarray | None = None):
         positions = np.ascontiguousarray(positions, dtype=np.float64)
         if positions.ndim != 3 or positions.shape[1:] != (3, 3):
             raise ValueError(f"positions must be (T, 3, 3), got {positions.shape}")
@@ -77,6 +84,9 @@ class RayCaster:
             # Embree rejects no triangle for being degenerate, it just never reports hits on it.
             mesh_construction.TriangleMesh(self._scene, positions.astype(np.float32))
         self.rays_cast = 0  # closest-hit and occlusion rays traced so far (statistics)
+        tau = None if transmission is None else np.asarray(transmission, np.float64)
+        self.transmission = tau if tau is not None and tau.any() else None
+        """(T,) float64 pass-through probabilities, or None when every triangle is opaque."""
 
     def serial(self) -> "RayCaster":
         """A view sharing this BVH that traces on the calling thread.
@@ -164,7 +174,57 @@ class RayCaster:
 
         list(self.executor.map(run, self._chunks(n)))
         self.rays_cast += n
+        if self.transmission is not None and out.any():
+            blocked = np.flatnonzero(out)
+            limit = np.full(n, 3.0e38, np.float32) if limit is None else limit
+            out[blocked] = self._blocked_through_layers(o[blocked], d[blocked], limit[blocked])
         return out
+
+    def _blocked_through_layers(self, o: np.ndarray, d: np.ndarray, limit: np.ndarray) -> np.ndarray:
+        """(m,) bool: do rays that hit something stop at an opaque layer (Cycles' transparent shadows)?
+
+        Each ray walks its hits front to back; a triangle of transmission tau lets it
+        through with probability tau (1: always, 0: never), decided by a hash of the
+        ray's float32 origin and direction so the answer does not depend on chunking
+        or threads. Partial transmission gives a partial shadow in expectation over
+        the shadow samples. After :data:`TRANSPARENT_MAX_LAYERS` layers the ray is blocked.
+        o, d : (m, 3) float32 pushed origins and unit directions; limit : (m,) float32 distances.
+        """
+        blocked = np.ones(len(o), bool)
+        alive = np.arange(len(o))
+        o, limit = o.copy(), limit.astype(np.float64)
+        for layer in range(TRANSPARENT_MAX_LAYERS + 1):
+            if len(alive) == 0:
+                break
+            prim, t = self._closest(o[alive], d[alive], limit[alive].astype(np.float32))
+            missed = prim < 0
+            blocked[alive[missed]] = False
+            alive, prim, t = alive[~missed], prim[~missed], t[~missed]
+            u = _hash_uniform(o[alive], d[alive], layer)
+            passes = (u < self.transmission[prim]) & (layer < TRANSPARENT_MAX_LAYERS)
+            alive, t = alive[passes], t[passes]
+            # Continue just past the layer: epsilon along the ray clears its surface.
+            step = t + self.epsilon
+            o[alive] = (o[alive] + step[:, None] * d[alive]).astype(np.float32)
+            limit[alive] -= step
+            done = limit[alive] <= 0
+            blocked[alive[done]] = False
+            alive = alive[~done]
+        return blocked
+
+    def _closest(self, o: np.ndarray, d: np.ndarray, limit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(primitive (m,) int64, -1 on a miss; t (m,) float64) of float32 rays, traced on the executor."""
+        prim = np.full(len(o), -1, np.int64)
+        t = np.full(len(o), np.inf)
+
+        def run(s: slice):
+            r = self._scene.run(o[s], d[s], output=1, dists=limit[s])
+            prim[s] = r["primID"]
+            t[s] = r["tfar"]
+
+        list(self.executor.map(run, self._chunks(len(o))))
+        self.rays_cast += len(o)
+        return prim, t
 
     def visible_between(self, points: np.ndarray, normals: np.ndarray | None, targets: np.ndarray,
                         target_normals: np.ndarray | None = None) -> np.ndarray:
@@ -193,6 +253,20 @@ def _unit(v: np.ndarray) -> np.ndarray:
     v = np.asarray(v, dtype=np.float64)
     length = np.linalg.norm(v, axis=1, keepdims=True)
     return np.divide(v, length, out=np.zeros_like(v), where=length > 0)
+
+
+def _hash_uniform(o: np.ndarray, d: np.ndarray, salt: int) -> np.ndarray:
+    """(m,) float64 in [0, 1): a hash (splitmix64 finaliser) of float32 origins, directions and ``salt``."""
+    bits = np.concatenate([np.ascontiguousarray(o, np.float32).view(np.uint32),
+                           np.ascontiguousarray(d, np.float32).view(np.uint32)], axis=1).astype(np.uint64)
+    h = np.full(len(bits), 0x9E3779B97F4A7C15 ^ salt, np.uint64)
+    with np.errstate(over="ignore"):
+        for column in bits.T:
+            h = (h ^ column) * np.uint64(0xBF58476D1CE4E5B9)
+            h ^= h >> np.uint64(31)
+            h = h * np.uint64(0x94D049BB133111EB)
+            h ^= h >> np.uint64(29)
+    return (h >> np.uint64(11)).astype(np.float64) * 2.0 ** -53
 
 
 def _limits(t_max, n: int):

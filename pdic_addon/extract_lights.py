@@ -151,6 +151,13 @@ def extract_light(light, matrix_world: np.ndarray, name: str, warnings: list):
     return None
 
 
+def recentre_light(light, origin_world: np.ndarray):
+    """``light`` with its position moved to scene-local coordinates (a sun has none)."""
+    if not hasattr(light, "position"):
+        return light
+    return replace(light, position=light.position - origin_world)
+
+
 def extract_world(world, warnings: list) -> World:
     """The uniform world radiance (3,) W/m^2/sr of ``world`` (a bpy World or None -> black).
 
