@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..core.raster import overlapping
 from ..core.scene import BakeTarget, Geometry, Scene, SceneError, recentre
 from .extract_lights import extract_light, extract_world, recentre_light
 from .extract_materials import MaterialTable
@@ -477,20 +478,16 @@ def degenerate_counts(chunks: list, warnings: list) -> dict:
     return degenerate
 
 
-def shared_lightmap_triangles(lightmap_uv: np.ndarray) -> int:
-    """Number of triangles of (t, 3, 2) UVs with area whose UV triangle another triangle repeats exactly.
+def shared_lightmap_triangles(lightmap_uv: np.ndarray, resolution: tuple) -> int:
+    """Number of triangles of (t, 3, 2) light-map UVs that share a texel sample with another one.
 
     A modifier that copies a mesh (Array, Mirror) copies its light-map UVs too, so the
-    copies land on the same texels; an unwrap's own charts never repeat.
+    copies land on the same texels; an unwrap's own charts never overlap. Tested on
+    the light map's own grid, 2 x 2 points per texel (``core.raster.overlapping``).
     """
-    uv = np.asarray(lightmap_uv, np.float64)
-    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-    has_area = np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) > 1e-12
-    keys = np.round(uv[has_area].reshape(-1, 6), 6)
-    if len(keys) == 0:
+    if len(lightmap_uv) == 0:
         return 0
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    return int((counts[inverse.ravel()] > 1).sum())
+    return int(overlapping(lightmap_uv, int(resolution[0]), int(resolution[1]), samples_per_axis=2).sum())
 
 
 def _replicating_modifiers(ob) -> str:
@@ -500,7 +497,7 @@ def _replicating_modifiers(ob) -> str:
     return ", ".join(found) if found else "a modifier"
 
 
-def _base_shared_fraction(ob, uv_name: str) -> float:
+def _base_shared_fraction(ob, uv_name: str, resolution: tuple) -> float:
     """Fraction of the original (unmodified) mesh's triangles whose light-map UV triangle repeats."""
     mesh = ob.data
     layer = mesh.uv_layers.get(uv_name)
@@ -509,10 +506,10 @@ def _base_shared_fraction(ob, uv_name: str) -> float:
         return 0.0
     loops = np.empty(3 * t, np.int32)
     mesh.loop_triangles.foreach_get("loops", loops)
-    return shared_lightmap_triangles(_read_uv(mesh, layer, loops)) / t
+    return shared_lightmap_triangles(_read_uv(mesh, layer, loops), resolution) / t
 
 
-def _refusal(ob, chunk: _Chunk | None, reader: _Reader, uid, uv_name: str) -> str | None:
+def _refusal(ob, chunk: _Chunk | None, reader: _Reader, uid, uv_name: str, resolution: tuple) -> str | None:
     """Why the target ``ob`` gets no light map, or None when it can be baked.
 
     Copies are detected as light-map UV triangles that repeat more often in the evaluated
@@ -521,8 +518,8 @@ def _refusal(ob, chunk: _Chunk | None, reader: _Reader, uid, uv_name: str) -> st
     if chunk is None:
         return "has no triangles" if uid in reader.empty_targets else "not found in the evaluated scene"
     t = len(chunk.material)
-    shared = shared_lightmap_triangles(chunk.lightmap_uv)
-    if shared / t > _base_shared_fraction(ob, uv_name) + SHARED_LIGHTMAP_UV_FRACTION:
+    shared = shared_lightmap_triangles(chunk.lightmap_uv, resolution)
+    if shared / t > _base_shared_fraction(ob, uv_name, resolution) + SHARED_LIGHTMAP_UV_FRACTION:
         return (f"{shared} of its {t} triangles share light-map texels with copies made by "
                 f"{_replicating_modifiers(ob)}; apply the modifier (Object > Apply) or make the copies "
                 f"separate objects, then bake again")
@@ -542,14 +539,14 @@ def assemble_targets(targets: _Targets, reader: _Reader, resolutions: dict, uv_n
     for uid, ob in targets.bake.items():
         index = reader.target_chunk.get(uid)
         chunk = None if index is None else reader.chunks[index]
-        reason = _refusal(ob, chunk, reader, uid, uv_name)
+        if ob.name not in resolutions:
+            raise SceneError(f"object {ob.name!r}: no light-map resolution given")
+        width, height = resolutions[ob.name]
+        reason = _refusal(ob, chunk, reader, uid, uv_name, (width, height))
         if reason is not None:
             warnings.append(f"object {ob.name!r}: {reason}; no light map baked")
             refused.append(f"object {ob.name!r}: {reason}")
             continue
-        if ob.name not in resolutions:
-            raise SceneError(f"object {ob.name!r}: no light-map resolution given")
-        width, height = resolutions[ob.name]
         triangles = np.arange(offsets[index], offsets[index + 1], dtype=np.int64)
         if ((chunk.lightmap_uv < -1e-4) | (chunk.lightmap_uv > 1 + 1e-4)).any():
             warnings.append(f"object {ob.name!r}: light-map UV map {uv_name!r} has coordinates outside [0, 1]")
