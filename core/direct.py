@@ -162,9 +162,9 @@ def _add_samples(out: DirectResult, kind: str, key: str, caster: RayCaster, idx:
         pi, ni = p[idx[rows]], n_g[idx[rows]]
         if directions is None:
             tn = None if target_normals is None else target_normals[rows, cols]
-            vis[rows, cols] = caster.visible_between(pi, ni, targets[rows, cols], tn)
+            vis[rows, cols] = caster.transmittance_between(pi, ni, targets[rows, cols], tn)
         else:
-            vis[rows, cols] = ~caster.occluded(pi, directions[rows, cols], np.inf, ni)
+            vis[rows, cols] = caster.transmittance(pi, directions[rows, cols], np.inf, ni)
     out.shadow_rays[kind] += len(rows)
     traced = np.zeros(len(p), bool)
     traced[idx[rows]] = True
@@ -421,7 +421,7 @@ def _emissive(out, scene: Scene, caster, p, n_s, n_g, samples, rng):
     if len(rows):
         m_toward = np.sign(facing[rows, cols])[:, None] * n_tri[k[rows, cols]]
         target = _lift_off_emitter(q[rows, cols], m_toward, caster)
-        vis[rows, cols] = caster.visible_between(pk[rows], ngk[rows], target)
+        vis[rows, cols] = caster.transmittance_between(pk[rows], ngk[rows], target)
     out.shadow_rays["emissive"] += len(rows)
     traced = np.zeros(n, bool)
     traced[idx[rows]] = True

@@ -154,15 +154,25 @@ class RayCaster:
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray | float,
                  normals: np.ndarray | None = None) -> np.ndarray:
-        """(n,) bool: is anything hit along each ray before ``t_max``?
+        """(n,) bool: is each ray blocked before ``t_max``? (less than half its light gets through).
 
         For shadow rays toward a point at distance d pass ``t_max = d * (1 - 1e-4) - epsilon``
         or use :meth:`visible_between`, which does that.
         """
+        return self.transmittance(origins, directions, t_max, normals) < 0.5
+
+    def transmittance(self, origins: np.ndarray, directions: np.ndarray, t_max: np.ndarray | float,
+                      normals: np.ndarray | None = None) -> np.ndarray:
+        """(n,) float64 in [0, 1]: the fraction of light passing each ray before ``t_max``.
+
+        0 or 1 when every triangle is opaque; with transmissive triangles, the product of
+        the transmissions of the layers the ray crosses (Cycles' transparent shadows).
+        Arguments as :meth:`occluded`.
+        """
         n = len(origins)
-        out = np.zeros(n, bool)
+        blocked = np.zeros(n, bool)
         if n == 0 or self.triangle_count == 0:
-            return out
+            return np.ones(n)
         directions = _unit(directions)
         o = self.offset_origins(origins, normals, directions).astype(np.float32)
         d = directions.astype(np.float32)
@@ -170,47 +180,41 @@ class RayCaster:
 
         def run(s: slice):
             kwargs = {} if limit is None else {"dists": limit[s]}
-            out[s] = self._scene.run(o[s], d[s], query="OCCLUDED", **kwargs) >= 0
+            blocked[s] = self._scene.run(o[s], d[s], query="OCCLUDED", **kwargs) >= 0
 
         list(self.executor.map(run, self._chunks(n)))
         self.rays_cast += n
-        if self.transmission is not None and out.any():
-            blocked = np.flatnonzero(out)
+        out = (~blocked).astype(np.float64)
+        if self.transmission is not None and blocked.any():
+            rows = np.flatnonzero(blocked)
             limit = np.full(n, 3.0e38, np.float32) if limit is None else limit
-            out[blocked] = self._blocked_through_layers(o[blocked], d[blocked], limit[blocked])
+            out[rows] = self._through_layers(o[rows], d[rows], limit[rows])
         return out
 
-    def _blocked_through_layers(self, o: np.ndarray, d: np.ndarray, limit: np.ndarray) -> np.ndarray:
-        """(m,) bool: do rays that hit something stop at an opaque layer (Cycles' transparent shadows)?
+    def _through_layers(self, o: np.ndarray, d: np.ndarray, limit: np.ndarray) -> np.ndarray:
+        """(m,) float64 product of the transmissions of the layers each ray crosses before its limit.
 
-        Each ray walks its hits front to back; a triangle of transmission tau lets it
-        through with probability tau (1: always, 0: never), decided by a hash of the
-        ray's float32 origin and direction so the answer does not depend on chunking
-        or threads. Partial transmission gives a partial shadow in expectation over
-        the shadow samples. After :data:`TRANSPARENT_MAX_LAYERS` layers the ray is blocked.
+        Each ray walks its hits front to back; an opaque layer or the
+        :data:`TRANSPARENT_MAX_LAYERS` + 1-th layer stops it with 0, as Cycles does.
         o, d : (m, 3) float32 pushed origins and unit directions; limit : (m,) float32 distances.
         """
-        blocked = np.ones(len(o), bool)
+        throughput = np.ones(len(o))
         alive = np.arange(len(o))
         o, limit = o.copy(), limit.astype(np.float64)
         for layer in range(TRANSPARENT_MAX_LAYERS + 1):
             if len(alive) == 0:
                 break
             prim, t = self._closest(o[alive], d[alive], limit[alive].astype(np.float32))
-            missed = prim < 0
-            blocked[alive[missed]] = False
-            alive, prim, t = alive[~missed], prim[~missed], t[~missed]
-            u = _hash_uniform(o[alive], d[alive], layer)
-            passes = (u < self.transmission[prim]) & (layer < TRANSPARENT_MAX_LAYERS)
-            alive, t = alive[passes], t[passes]
+            alive, prim, t = alive[prim >= 0], prim[prim >= 0], t[prim >= 0]
+            throughput[alive] *= self.transmission[prim] if layer < TRANSPARENT_MAX_LAYERS else 0.0
+            going = throughput[alive] > 0
+            alive, t = alive[going], t[going]
             # Continue just past the layer: epsilon along the ray clears its surface.
             step = t + self.epsilon
             o[alive] = (o[alive] + step[:, None] * d[alive]).astype(np.float32)
             limit[alive] -= step
-            done = limit[alive] <= 0
-            blocked[alive[done]] = False
-            alive = alive[~done]
-        return blocked
+            alive = alive[limit[alive] > 0]
+        return throughput
 
     def _closest(self, o: np.ndarray, d: np.ndarray, limit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(primitive (m,) int64, -1 on a miss; t (m,) float64) of float32 rays, traced on the executor."""
@@ -230,10 +234,19 @@ class RayCaster:
                         target_normals: np.ndarray | None = None) -> np.ndarray:
         """(n,) bool: is the segment from each surface point to each target point unblocked?
 
+        True where at least half the light passes (:meth:`transmittance_between` >= 0.5).
+        """
+        return self.transmittance_between(points, normals, targets, target_normals) >= 0.5
+
+    def transmittance_between(self, points: np.ndarray, normals: np.ndarray | None, targets: np.ndarray,
+                              target_normals: np.ndarray | None = None) -> np.ndarray:
+        """(n,) float64 in [0, 1]: the fraction of light passing the segment from each surface point to each target.
+
         Each end is pushed ``epsilon`` off its own surface, along its normal and
         toward the other end, and the segment is measured between the pushed
         ends: neither the receiver nor the emitter's own surface (or a ceiling
         it sits flush with) can occlude it, at any angle of incidence.
+        A zero-length segment passes nothing.
         """
         points = np.asarray(points, dtype=np.float64)
         targets = np.asarray(targets, dtype=np.float64)
@@ -245,28 +258,13 @@ class RayCaster:
         directions = np.divide(segment, dist[:, None], out=np.zeros_like(segment), where=dist[:, None] > 0)
         # Stop short of the far end by epsilon so a target on a surface never hits it.
         t_max = np.maximum(dist - (self.epsilon if target_normals is None else 0.0), 0.0)
-        visible = ~self.occluded(start, directions, t_max)
-        return visible & (dist > 0)
+        return np.where(dist > 0, self.transmittance(start, directions, t_max), 0.0)
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
     v = np.asarray(v, dtype=np.float64)
     length = np.linalg.norm(v, axis=1, keepdims=True)
     return np.divide(v, length, out=np.zeros_like(v), where=length > 0)
-
-
-def _hash_uniform(o: np.ndarray, d: np.ndarray, salt: int) -> np.ndarray:
-    """(m,) float64 in [0, 1): a hash (splitmix64 finaliser) of float32 origins, directions and ``salt``."""
-    bits = np.concatenate([np.ascontiguousarray(o, np.float32).view(np.uint32),
-                           np.ascontiguousarray(d, np.float32).view(np.uint32)], axis=1).astype(np.uint64)
-    h = np.full(len(bits), 0x9E3779B97F4A7C15 ^ salt, np.uint64)
-    with np.errstate(over="ignore"):
-        for column in bits.T:
-            h = (h ^ column) * np.uint64(0xBF58476D1CE4E5B9)
-            h ^= h >> np.uint64(31)
-            h = h * np.uint64(0x94D049BB133111EB)
-            h ^= h >> np.uint64(29)
-    return (h >> np.uint64(11)).astype(np.float64) * 2.0 ** -53
 
 
 def _limits(t_max, n: int):
