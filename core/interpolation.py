@@ -28,6 +28,8 @@ class CacheLookup:
     cache: IrradianceCache
     a: float
     use_gradients: bool = True
+    caster: object = None
+    """A :class:`core.rays.RayCaster`: with it a record off a point's tangent plane must see the point."""
     zone: np.ndarray = field(init=False, repr=False)
     clearance: np.ndarray = field(init=False, repr=False)
 
@@ -80,6 +82,8 @@ class CacheLookup:
             delta = p_r - p_k
             near_wall = ok & (np.einsum("ij,ij->i", delta, delta) >= self.clearance[rec] ** 2)
             ok[near_wall] = ~beyond_wall(c.wall[rec[near_wall]], delta[near_wall], n_k[near_wall])
+            if self.caster is not None:  # [record visibility] a surface between point and record hides it
+                ok[ok] = ~self.caster.hidden_off_plane(p_r[ok], n_r[ok], p_k[ok], n_k[ok])
             rows, rec, w = rows[ok], rec[ok], w[ok]
             E_rec = record_estimate(c.E[rec], p_r[ok], n_r[ok], p_k[ok], n_k[ok],
                                     c.grad_r[rec] if self.use_gradients else None,

@@ -201,7 +201,7 @@ class PhotonDensity:
         return float(ok.sum() / np.sum(1.0 / d))
 
     def record(self, p_k: np.ndarray, n_k: np.ndarray, R_k: float, a: float, wall: np.ndarray | None = None,
-               coverage: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+               coverage: float | None = None, caster=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
         """Both photon queries of one record creation, gathering the sphere's photons once.
 
         Returns (zone, w, E_k, used): the photons of S_{a R_k} that record k contributes
@@ -213,6 +213,7 @@ class PhotonDensity:
         another wall of a corner, the far side of a thin wall) are rejected. The
         selection is by distance, not by Ward's weight: the kernel is normalised over
         the whole disc, and on a curved surface Equation 2 accepts a smaller region.
+        With ``caster``, photons off the record's tangent plane that cannot see it are left out.
         """
         radius = a * R_k
         sphere = np.asarray(self.tree.query_ball_point(p_k, radius), dtype=np.int64)
@@ -235,6 +236,8 @@ class PhotonDensity:
                 mass = max(float(np.mean(2 * u ** 2 - u ** 4)), 1e-3)
         if coverage is not None:  # measured by surface_coverage (walls included): the share that is surface
             mass = coverage
+        if caster is not None:  # [record visibility] photons on the far side of a surface are not this one's
+            use[use] = ~caster.hidden_off_plane(p_k, n_k, P[use], N[use])
         used = int(use.sum())
         E_k = np.zeros(3)
         if used:
@@ -303,7 +306,8 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
             if caster is not None and params.kernel_coverage:
                 coverage = surface_coverage(caster, p_k, n_k, a * R_k, est_wall)
                 stats.wall_rays += COVERAGE_RINGS * COVERAGE_ANGLES
-            zone, w, E_k, used = density.record(p_k, n_k, R_k, a, est_wall, coverage)
+            zone, w, E_k, used = density.record(p_k, n_k, R_k, a, est_wall, coverage,
+                                                None if candidate_is_photon else caster)
             if candidate_is_photon:
                 members, w_members = zone, w
             else:

@@ -39,6 +39,8 @@ PHOTON_DIRECT_SAMPLES = 2
 """Shadow-ray samples per photon for its direct irradiance (section 3.1); noise averages over cells."""
 HOLE_ROUNDS = 3
 """Rounds of hole records (section 3.4) before falling back to the nearest record."""
+NEAREST_RECORDS = 8
+"""Records the last-resort fallback tries, nearest first, for one that sees the texel sample."""
 FINE_ZONE_TEXELS = 4.0
 """Texels whose smallest accepted zone of influence is narrower than this many texels are
 interpolated per sample rather than once at their centroid."""
@@ -332,11 +334,11 @@ def indirect_at_texels(scene: Scene, caster: RayCaster, density: PhotonDensity |
         # Where a zone of influence spans few texels, Equation 3 changes inside a texel (zone
         # edges are steps): there every sample gets its own lookup, as a 2x2 box filter would.
         _, _, smallest = _lookup(full, params.a, settings.gradients, merged.p, merged.n_shading, executor,
-                                 progress, with_zone=True)
+                                 progress, with_zone=True, caster=caster)
         fine = np.flatnonzero((smallest < FINE_ZONE_TEXELS * work.texel_size)[sample_to_point])
         if len(fine):
             E_fine, w_fine = _lookup(full, params.a, settings.gradients, valid_points.p[fine],
-                                     valid_points.n_shading[fine], executor, progress)
+                                     valid_points.n_shading[fine], executor, progress, caster=caster)
             covered = w_fine > 0
             E[valid[fine[covered]]] = E_fine[covered]
     stats.add(texel_points_interpolated=len(merged) + len(fine), texel_points_unfilled=unfilled)
@@ -414,7 +416,7 @@ def interpolate_filling_holes(scene, caster, density: PhotonDensity, cache: Irra
                               params: CacheParameters, settings: BakeSettings, executor: Executor,
                               progress: Progress):
     """Equation 3 at every texel sample; samples no record covers get new records (section 3.4)."""
-    E, w = _lookup(cache, params.a, settings.gradients, points.p, points.n_shading, executor, progress)
+    E, w = _lookup(cache, params.a, settings.gradients, points.p, points.n_shading, executor, progress, caster=caster)
     hole_records = 0
     for round_ in range(HOLE_ROUNDS):
         holes = np.flatnonzero(w <= 0)
@@ -430,19 +432,25 @@ def interpolate_filling_holes(scene, caster, density: PhotonDensity, cache: Irra
                                     stream=20 + round_)
         hole_records += len(new)
         cache = cache.extend(new)
-        E_h, w_h = _lookup(cache, params.a, settings.gradients, cand_p, cand_n, executor, progress)
+        E_h, w_h = _lookup(cache, params.a, settings.gradients, cand_p, cand_n, executor, progress, caster=caster)
         E[holes], w[holes] = E_h, w_h
     unfilled = np.flatnonzero(w <= 0)
     if len(unfilled) and len(cache):
-        # Last resort, counted in the stats: the nearest record's irradiance.
-        _, nearest = cKDTree(cache.p).query(points.p[unfilled])
-        E[unfilled] = cache.E[nearest]
+        # Last resort, counted in the stats: the nearest record that sees the point (else 0).
+        k = min(NEAREST_RECORDS, len(cache))
+        _, nearest = cKDTree(cache.p).query(points.p[unfilled], k=k)
+        nearest = nearest.reshape(len(unfilled), k)
+        p, n = np.repeat(points.p[unfilled], k, axis=0), np.repeat(points.n_shading[unfilled], k, axis=0)
+        seen = ~caster.hidden_off_plane(p, n, cache.p[nearest.ravel()], cache.n[nearest.ravel()]).reshape(-1, k)
+        first = np.argmax(seen, axis=1)
+        E[unfilled] = np.where(seen.any(axis=1)[:, None], cache.E[nearest[np.arange(len(unfilled)), first]], 0.0)
     return E, cache, hole_records, len(unfilled)
 
 
-def _lookup(cache, a, gradients, p, n, executor: Executor, progress: Progress, with_zone: bool = False):
+def _lookup(cache, a, gradients, p, n, executor: Executor, progress: Progress, with_zone: bool = False,
+            caster: RayCaster | None = None):
     """Equation 3 at points, chunked: (E, w_sum), or (E, w_sum, smallest zone) ``with_zone``."""
-    lookup = CacheLookup(cache, a, gradients)
+    lookup = CacheLookup(cache, a, gradients, caster=None if caster is None else caster.serial())
     chunks = [slice(s, min(s + TEXEL_CHUNK, len(p))) for s in range(0, len(p), TEXEL_CHUNK)]
     done = [0]
 

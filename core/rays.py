@@ -32,6 +32,9 @@ MIN_PARALLEL_BATCH = 65_536
 # Transmissive layers a shadow ray or photon path crosses before the next one counts
 # as opaque: Cycles' default Transparent bounce limit (Light Paths > Max Bounces).
 TRANSPARENT_MAX_LAYERS = 8
+# A record or photon farther than this many epsilons from a point's tangent plane counts only
+# if it sees the point (RayCaster.hidden_off_plane); below it, the two are taken as coplanar.
+OFF_PLANE = 4.0
 
 
 @dataclass(frozen=True)
@@ -229,6 +232,34 @@ class RayCaster:
         list(self.executor.map(run, self._chunks(len(o))))
         self.rays_cast += len(o)
         return prim, t
+
+    def hidden_off_plane(self, p: np.ndarray, n: np.ndarray, q: np.ndarray, m: np.ndarray) -> np.ndarray:
+        """(k,) bool: q lies off p's tangent plane (more than :data:`OFF_PLANE` epsilons) and cannot see p.
+
+        p, q : (k, 3) or (3,) surface points, n, m : their unit normals (the sides they face).
+        Coplanar pairs cast no ray. A record or photon on the inside of a box standing 1 cm
+        above a floor is hidden from the floor under it (it leaked light there, issue 14 item 18).
+        """
+        p, n, q, m = np.broadcast_arrays(*(np.asarray(x, np.float64) for x in (p, n, q, m)))
+        hidden = np.zeros(len(p), bool)
+        off = np.flatnonzero(np.abs(np.einsum("ij,ij->i", q - p, n)) > OFF_PLANE * self.epsilon)
+        if len(off):
+            hidden[off] = ~self.sides_visible(p[off], n[off], q[off], m[off])
+        return hidden
+
+    def sides_visible(self, p: np.ndarray, n: np.ndarray, q: np.ndarray, m: np.ndarray) -> np.ndarray:
+        """(k,) bool: does the side of the surface at q that m (k, 3) faces see the side at p that n faces?
+
+        Both ends are lifted ``epsilon`` along their own normals (p, q : (k, 3) surface points):
+        unlike :meth:`visible_between`, a point on the far side of a surface is not pushed
+        through it, so a record or photon inside a closed box is hidden from the floor under it.
+        """
+        start = np.asarray(p, np.float64) + self.epsilon * np.asarray(n, np.float64)
+        end = np.asarray(q, np.float64) + self.epsilon * np.asarray(m, np.float64)
+        segment = end - start
+        dist = np.linalg.norm(segment, axis=1)
+        directions = np.divide(segment, dist[:, None], out=np.zeros_like(segment), where=dist[:, None] > 0)
+        return (dist == 0) | ~self.occluded(start, directions, dist)
 
     def visible_between(self, points: np.ndarray, normals: np.ndarray | None, targets: np.ndarray,
                         target_normals: np.ndarray | None = None) -> np.ndarray:
