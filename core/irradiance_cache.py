@@ -301,13 +301,12 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
             # corner of a box cost 3 points of Preview error and two thirds of the rays saved on the
             # Cornell box. A hole record may sit where no photon arrives (behind a thin wall); there
             # photons past a wall would leak light in, so its estimate stops at its walls.
-            est_wall = None if candidate_is_photon else wall
+            est_wall, est_caster = (None, None) if candidate_is_photon else (wall, caster)
             coverage = None
             if caster is not None and params.kernel_coverage:
                 coverage = surface_coverage(caster, p_k, n_k, a * R_k, est_wall)
                 stats.wall_rays += COVERAGE_RINGS * COVERAGE_ANGLES
-            zone, w, E_k, used = density.record(p_k, n_k, R_k, a, est_wall, coverage,
-                                                None if candidate_is_photon else caster)
+            zone, w, E_k, used = density.record(p_k, n_k, R_k, a, est_wall, coverage, est_caster)
             if candidate_is_photon:
                 members, w_members = zone, w
             else:

@@ -121,8 +121,7 @@ def _bake(scene: Scene, settings: BakeSettings, progress: Progress, executor: Ex
         if not caster_box:
             progress.begin("Building BVH")
             with stats.stage("bvh"):
-                caster_box.append(RayCaster(scene.geometry.positions, scene.extent, executor,
-                                            transmission=scene.geometry.transmission))
+                caster_box.append(RayCaster(scene.geometry.positions, scene.extent, executor, scene.geometry.transmission))
         return caster_box[0]
 
     # -- texel samples, per target (only the scene's targets: objects not baked are never rasterised)
