@@ -460,6 +460,8 @@ def _lookup(cache, a, gradients, p, n, executor: Executor, progress: Progress, w
         return out
 
     parts = executor.map(run, chunks)
+    if caster is not None:
+        caster.rays_cast += lookup.caster.rays_cast  # record-visibility rays
     if not parts:
         parts = [(np.zeros((0, 3)), np.zeros(0), np.zeros(0))[:3 if with_zone else 2]]
     return tuple(np.concatenate([part[i] for part in parts]) for i in range(len(parts[0])))
