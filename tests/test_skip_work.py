@@ -135,6 +135,7 @@ def test_cache_folder_serves_a_new_session(tmp_path):
     np.testing.assert_array_equal(first.lightmaps["floor"], again.lightmaps["floor"])
 
 
+@pytest.mark.slow
 def test_changing_the_scene_invalidates_the_cache():
     store = BakeCache()
     bake(_scene(_box_faces(), {"floor": (FLOOR, 8)}, [LAMP]), SETTINGS, cache=store)
@@ -147,6 +148,7 @@ def test_changing_the_scene_invalidates_the_cache():
     assert c["photon_rays"] > 0 and c["targets_shaded_direct"] == 1
 
 
+@pytest.mark.slow
 def test_changing_one_resolution_redoes_only_that_object():
     store = BakeCache()
     settings = preset("FINAL", photons=4000, max_bounces=3, threads=1, hemisphere_theta=6, hemisphere_phi=12)
@@ -164,6 +166,7 @@ def test_changing_one_resolution_redoes_only_that_object():
     assert c["photon_rays"] == 0 and c["records"] > 0 and c["targets_rasterised"] == 1
 
 
+@pytest.mark.slow
 def test_reused_photon_map_serves_several_caches_without_mixing_them():
     scene = _scene(_box_faces(), {"floor": (FLOOR, 10)}, [LAMP])
     settings = preset("FINAL", photons=4000, max_bounces=3, threads=1, hemisphere_theta=6, hemisphere_phi=12)

@@ -9,8 +9,9 @@ the three sample blends at Preview and Final, the generated occluded building an
 at Final, with ``reuse_photon_paths`` and ``gradients`` on and off, and with a :class:`BakeCache`
 (a re-bake from the cache must give the same maps). Every light map (RGBA, direct, indirect) and
 every statistics counter (not the timings) is stored under ``<config>/<target>/<what>``.
-Runs in a few minutes on a loaded 2-core machine; the unwraps are kept in a cache folder
-(``--work``, default /tmp/pdic_golden) so re-runs skip them.
+About 6 CPU-minutes (Sponza takes most; 7 minutes wall on a quiet 2-core machine, over 20 when
+six jobs share it; ``--only`` runs a subset); the unwraps are kept in a cache folder (``--work``,
+default /tmp/pdic_golden) so re-runs skip them.
 """
 from __future__ import annotations
 
