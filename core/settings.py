@@ -44,6 +44,12 @@ class Deviations:
     """Rounds of hole records (section 3.4); the paper places them once."""
     nearest_record_fallback: bool = True
     """Texel samples still uncovered after the hole rounds take the nearest record's E_k."""
+    record_visibility: bool = True
+    """A record (or a hole record's photon) off a texel sample's tangent plane counts only if it
+    sees the sample: no light from a closed box's inside onto the floor under it."""
+    transparent_shadows: bool = True
+    """Shadow rays and photons pass transmissive triangles (Geometry.transmission), as Cycles'
+    transparent shadows; off, every triangle is opaque."""
 
 
 @dataclass(frozen=True)
