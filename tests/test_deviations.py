@@ -85,7 +85,7 @@ def test_a_cached_bake_is_not_reused_for_other_deviations(tmp_path, default):
 
     store = BakeCache(tmp_path / "cache")
     bake(_box(), FINAL, cache=store)
-    switched = bake(_box(), replace(FINAL, deviations=Deviations(neighbour_clamp=False)), cache=store)
-    alone, _ = _bake(FINAL, neighbour_clamp=False)
+    switched = bake(_box(), replace(FINAL, deviations=Deviations(harmonic_cell_radiance=False)), cache=store)
+    alone, _ = _bake(FINAL, harmonic_cell_radiance=False)
     for name in alone.lightmaps:
         np.testing.assert_array_equal(switched.lightmaps[name], alone.lightmaps[name])
