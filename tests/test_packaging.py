@@ -33,6 +33,7 @@ SUN_STRENGTH = 3.0
 def _load_tool(name: str):
     spec = importlib.util.spec_from_file_location(f"pdic_{name}", ROOT / "tools" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up there
     spec.loader.exec_module(module)
     return module
 
