@@ -96,8 +96,9 @@ def test_source_manifest_declares_what_the_extension_is():
         assert pattern in excluded
 
 
-def test_manifest_version_range_admits_every_tested_blender_and_no_unfiltering_4_2():
-    """min: the oldest tested 4.2 (it filters wheels by Python; 4.2.0 does not); max (exclusive): past the newest tested."""
+def test_manifest_admits_every_tested_blender_from_the_first_4_2_that_filters_wheels_by_python():
+    """min: the oldest tested 4.2, which filters wheels by Python (4.2.0 does not);
+    max (exclusive): the release after the newest tested."""
     manifest = tomllib.loads((ROOT / "blender_manifest.toml").read_text())
     low, high = _version(manifest["blender_version_min"]), _version(manifest["blender_version_max"])
     tested = sorted(_version(b.bpy) for b in blender_matrix.BLENDERS)
@@ -110,7 +111,8 @@ def test_manifest_version_range_admits_every_tested_blender_and_no_unfiltering_4
 
 
 def test_every_bundled_wheel_is_pinned_for_both_blender_pythons():
-    pins = {py: build_extension.pinned_versions(requirements=path) for py, path in build_extension.BLENDER_PYTHONS.items()}
+    pins = {py: build_extension.pinned_versions(requirements=path)
+            for py, path in build_extension.BLENDER_PYTHONS.items()}
     assert sorted(pins) == ["3.11", "3.13"]
     assert sorted(blender_matrix.REQUIREMENTS) == sorted(pins)
     assert {b.python for b in blender_matrix.BLENDERS} == set(pins)
@@ -136,7 +138,8 @@ def test_linux_build_holds_package_and_wheels_but_no_dev_files(built_zip):
     # Nothing from development.
     dev = [n for n in names if n.split("/")[0] in {"tests", "bench", "tools", ".ci", ".venv", "sample_blends", "out",
                                                    "dist", "build", "pdic_bootstrap.py", "pdic_bake.py",
-                                                   "requirements.txt", "DEVELOPERS.md", "README.md", ".gitignore"}
+                                                   "requirements.txt", "requirements-py313.txt", "DEVELOPERS.md",
+                                                   "README.md", ".gitignore"}
            or "__pycache__" in n or n.endswith(".pyc")]
     assert dev == [], f"development files in the extension: {dev}"
 

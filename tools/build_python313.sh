@@ -21,7 +21,11 @@ BUILD_DEPS=(build-essential dpkg-dev libssl-dev zlib1g-dev libffi-dev libbz2-dev
 
 say() { echo "build_python313: $*" >&2; }
 
-python_is_313() { "$1" -c 'import ssl, zlib, ctypes, bz2, lzma, sys; sys.exit(sys.version_info[:2] != (3, 13))' 2>/dev/null; }
+# A complete build: the right version, the optional modules, and pip (what `python -m venv` seeds).
+python_is_313() {
+    "$1" -c 'import ssl, zlib, ctypes, bz2, lzma, sys; sys.exit(sys.version_info[:2] != (3, 13))' 2>/dev/null \
+        && "$1" -m pip --version >/dev/null 2>&1
+}
 
 if [[ -x "$PYTHON" ]] && python_is_313 "$PYTHON"; then
     echo "$PYTHON"
@@ -61,7 +65,10 @@ APT_OPTS=(-o "APT::Sandbox::User=root" -o "Dir::Etc::SourceList=$work/sources.li
           -o "Dir::State::Lists=$work/lists" -o "Dir::Cache::pkgcache=" -o "Dir::Cache::srcpkgcache=")
 say "fetching the python3.13 source package of Debian $SUITE from $mirror"
 apt-get "${APT_OPTS[@]}" update -qq >&2
-(cd "$work/src" && apt-get "${APT_OPTS[@]}" source -qq python3.13 >/dev/null)
+# Unpacked without Debian's patches: upstream CPython 3.13.5 as Blender uses it (Debian's patches
+# disable ensurepip, hence venv's pip, and move site-packages to dist-packages).
+(cd "$work/src" && apt-get "${APT_OPTS[@]}" source -qq --download-only python3.13 >/dev/null \
+    && dpkg-source -x --skip-patches python3.13_*.dsc >/dev/null)
 srcdir=$(find "$work/src" -mindepth 1 -maxdepth 1 -type d -name 'python3.13-*' | head -n1)
 [[ -n "$srcdir" ]] || { say "error: apt-get source python3.13 unpacked nothing"; exit 1; }
 say "building $(basename "$srcdir") into $PREFIX (configure + make -j2)"
@@ -73,6 +80,6 @@ say "building $(basename "$srcdir") into $PREFIX (configure + make -j2)"
     rm -rf "$PREFIX"
     make altinstall >"$work/install.log" 2>&1 || { tail -n 30 "$work/install.log" >&2; exit 1; }
 )
-python_is_313 "$PYTHON" || { say "error: $PYTHON lacks ssl, zlib, ctypes, bz2 or lzma"; exit 1; }
+python_is_313 "$PYTHON" || { say "error: $PYTHON lacks ssl, zlib, ctypes, bz2, lzma or pip"; exit 1; }
 say "built $("$PYTHON" --version) in $((SECONDS - start)) s"
 echo "$PYTHON"
