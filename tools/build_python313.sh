@@ -66,8 +66,9 @@ APT_OPTS=(-o "APT::Sandbox::User=root" -o "Dir::Etc::SourceList=$work/sources.li
 say "fetching the python3.13 source package of Debian $SUITE from $mirror"
 apt-get "${APT_OPTS[@]}" update -qq >&2
 # apt verified the .dsc against the signed Release file (dpkg-source --no-check skips the
-# maintainer signature, whose keyring Debian 12 does not install). Unpacked without Debian's patches: upstream CPython 3.13.5 as Blender uses it (Debian's patches
-# disable ensurepip, hence venv's pip, and move site-packages to dist-packages).
+# maintainer signature, whose keyring Debian 12 does not install). Unpacked without Debian's
+# patches: upstream CPython 3.13.5 as Blender uses it (Debian's patches disable ensurepip,
+# hence venv's pip, and move site-packages to dist-packages).
 (cd "$work/src" && apt-get "${APT_OPTS[@]}" source -qq --download-only python3.13 >/dev/null \
     && dpkg-source -x --no-check --skip-patches python3.13_*.dsc >/dev/null)
 srcdir=$(find "$work/src" -mindepth 1 -maxdepth 1 -type d -name 'python3.13-*' | head -n1)
