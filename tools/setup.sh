@@ -62,7 +62,7 @@ find_base_python() {
         fi
     done
     if [[ "$PY" == 3.13 && -z "${PYTHON:-}" ]]; then
-        say "no python3.13 found: building it from Debian 13's source package (cached, ~2.5 min once)"
+        say "no python3.13 found: tools/build_python313.sh provides one (built once from Debian 13's source package, ~2.5 min, then cached)"
         bash "$ROOT/tools/build_python313.sh"
         return 0
     fi
