@@ -21,6 +21,7 @@ import fcntl
 import hashlib
 import os
 import re
+import shutil
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -105,7 +106,7 @@ def interpreter(blender: Blender, log=print) -> Path:
         if python.is_file() and stamp.is_file() and stamp.read_text() == _stamp(blender):
             return python
         log(f"blender_matrix: creating {venv} (bpy=={blender.bpy}, Blender {blender.line})")
-        subprocess.run(["rm", "-rf", str(venv)], check=True)
+        shutil.rmtree(venv, ignore_errors=True)
         base = getattr(sys, "_base_executable", sys.executable)
         subprocess.run([base, "-m", "venv", str(venv)], check=True)
         constraint_file = venv / "constraints.txt"
