@@ -115,7 +115,7 @@ class BakeSettings:
             raise ValueError(f"quality must be one of {QUALITIES}, got {self.quality!r}")
         checks = {
             "photons": self.photons >= 0,
-            "max_bounces": self.max_bounces >= 1,
+            "max_bounces": 1 <= self.max_bounces <= 255,  # core/photons.py counts bounces in a uint8
             "a": 0.0 < self.a <= 2.0,
             "r_nearest": self.r_nearest >= 1,
             "hemisphere_theta": self.hemisphere_theta >= 1,
