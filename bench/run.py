@@ -356,7 +356,7 @@ def figure5(name, scene, photons, bounces, extra, ref, pair=None) -> dict:
     executor = Executor(default_workers())
     progress, stats = Progress(), BakeStats()
     try:
-        caster = RayCaster(scene.geometry.positions, scene.extent, executor)
+        caster = RayCaster(scene.geometry.positions, scene.extent, executor, scene.geometry.transmission)
         points, rasters = texel_stage.lift_texels(scene, settings.texel_samples)
         inside, _ = inside_geometry(caster, scene.geometry.face_normals(), points.p, points.n_geometric,
                                     np.random.default_rng(0))

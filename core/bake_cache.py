@@ -91,8 +91,9 @@ def code_hash() -> str:
 def transport_key(scene) -> str:
     """Hash of everything light transport depends on (not targets, not resolutions, not origin)."""
     g = scene.geometry
+    transmissive = (g.transmission,) if g.transmission.any() else ()  # opaque scenes keep their keys
     return content_hash("transport", g.positions, g.normals, g.uvs, g.material, scene.materials,
-                        scene.textures, scene.lights, scene.world)
+                        scene.textures, scene.lights, scene.world, *transmissive)
 
 
 def target_key(scene, target, texel_samples: int) -> str:

@@ -102,7 +102,7 @@ def render_preview(scene: Scene, lightmaps: dict, camera: Camera, width: int, he
     if width < 1 or height < 1:
         raise ValueError(f"preview size {width}x{height} is empty")
     g, m = scene.geometry, scene.materials
-    caster = caster or RayCaster(g.positions, scene.extent)
+    caster = caster or RayCaster(g.positions, scene.extent, transmission=g.transmission)
     origins, directions = camera.rays(width, height)
     hits = caster.intersect(origins, directions)
     radiance = np.broadcast_to(np.asarray(scene.world.radiance, np.float32), (len(origins), 3)).copy()

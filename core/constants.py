@@ -102,6 +102,23 @@ HOLE_NEIGHBOURS = 8
 PHOTON_DIRECT_SAMPLES = 2
 """Shadow-ray samples per photon for its direct irradiance (section 3.1); noise averages over cells."""
 
+# --------------------------------------------------------------------------- transparent shadows (deviation: transparent-shadows)
+TRANSPARENT_MAX_LAYERS = 8
+"""Transmissive layers a shadow ray or photon path crosses before the next one counts as opaque:
+Cycles' default Transparent bounce limit (Light Paths > Max Bounces > Transparent)."""
+REFLECTED_SHARE_FLOOR = 1e-6
+"""A photon that does not pass a layer reflects with albedo rho / (1 - tau); 1 - tau below this
+counts as this (a fully transmissive layer past the layer limit reflects with albedo at most 1)."""
+
+# --------------------------------------------------------------------------- record visibility (deviation: record-visibility)
+OFF_PLANE = 4.0
+"""A record or photon farther than this many ray epsilons from a point's tangent plane counts only
+if it sees the point (RayCaster.hidden_off_plane); nearer, the two are taken as coplanar and cast
+no ray. A few epsilons: above the float32 rounding of surface points, far below a 1 cm gap."""
+NEAREST_RECORDS = 8
+"""Records the last-resort fallback tries, nearest first, for one that sees the texel sample
+(a box's inside records are the nearest to the floor under it; 8 reach past its bottom's)."""
+
 # --------------------------------------------------------------------------- light-map stage
 HOLE_ROUNDS = 3
 """Rounds of hole records (section 3.4) before falling back to the nearest record."""

@@ -56,7 +56,7 @@ class PhotonDensity:
         return float(ok.sum() / np.sum(1.0 / d))
 
     def record(self, p_k: np.ndarray, n_k: np.ndarray, R_k: float, a: float, wall: np.ndarray | None = None,
-               coverage: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+               coverage: float | None = None, caster=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
         """Both photon queries of one record creation, gathering the sphere's photons once.
 
         Returns (zone, w, E_k, used): the photons of S_{a R_k} that record k contributes
@@ -69,7 +69,9 @@ class PhotonDensity:
         distance, not by Ward's weight: the kernel is normalised over the whole disc, and on
         a curved surface Equation 2 accepts a smaller region. ``wall`` (deviation:
         wall-sectors) leaves out photons past the record's walls; ``coverage`` (deviation:
-        surface-coverage) replaces the disc's mass by the share of it that is surface.
+        surface-coverage) replaces the disc's mass by the share of it that is surface; with
+        ``caster`` (a :class:`~core.rays.RayCaster`; deviation: record-visibility) photons off the
+        record's tangent plane that cannot see it are left out.
         """
         radius = a * R_k
         sphere = np.asarray(self.tree.query_ball_point(p_k, radius), dtype=np.int64)
@@ -91,6 +93,8 @@ class PhotonDensity:
                 mass = max(float(np.mean(2 * u ** 2 - u ** 4)), WALL_MASS_FLOOR)
         if coverage is not None:  # measured by surface_coverage (walls included): the share that is surface
             mass = coverage
+        if caster is not None:  # photons on the far side of a surface are not this record's
+            use[use] = ~caster.hidden_off_plane(p_k, n_k, P[use], N[use])
         used = int(use.sum())
         E_k = np.zeros(3)
         if used:

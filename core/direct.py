@@ -128,17 +128,18 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 def _trace(out: DirectResult, caster: RayCaster, p, n_g, shadow: ShadowSamples) -> None:
-    """Trace the shadow rays of accepted samples and add colour * mean(weight * visible) to out.E[idx]."""
+    """Trace the shadow rays of accepted samples and add colour * mean(weight * transmittance) to out.E[idx]."""
     idx, ok, weight = shadow.idx, shadow.ok, shadow.weight
     k, m = ok.shape
     rows, cols = np.nonzero(ok)
     vis = np.zeros((k, m))
     if len(rows):
         pi, ni = p[idx[rows]], n_g[idx[rows]]
+        # Transmissive layers pass their share of the light (deviation: transparent-shadows).
         if shadow.directions is None:
-            vis[rows, cols] = caster.visible_between(pi, ni, shadow.targets[rows, cols], None)
+            vis[rows, cols] = caster.transmittance_between(pi, ni, shadow.targets[rows, cols], None)
         else:
-            vis[rows, cols] = ~caster.occluded(pi, shadow.directions[rows, cols], np.inf, ni)
+            vis[rows, cols] = caster.transmittance(pi, shadow.directions[rows, cols], np.inf, ni)
     out.shadow_rays[shadow.kind] += len(rows)
     traced = np.zeros(len(p), bool)
     traced[idx[rows]] = True

@@ -3,14 +3,16 @@
 Samples no record accepts get new records placed on them (Algorithm 1's hole entry point,
 :func:`~core.irradiance_cache.cache_for_holes`), refined like pass 3's records at Final
 quality; HOLE_ROUNDS rounds of that (deviation: hole-rounds), then the nearest record's
-irradiance for what is still uncovered (deviation: nearest-record-fallback).
+irradiance for what is still uncovered (deviation: nearest-record-fallback). A record off a
+sample's tangent plane counts only if it sees the sample, in every lookup and in the fallback
+(deviation: record-visibility).
 """
 from __future__ import annotations
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .constants import FINE_ZONE_TEXELS, STREAM_HOLE_ORDER, STREAM_REFINE_HOLES, STREAM_VALIDITY
+from .constants import FINE_ZONE_TEXELS, NEAREST_RECORDS, STREAM_HOLE_ORDER, STREAM_REFINE_HOLES, STREAM_VALIDITY
 from .density import PhotonDensity
 from .executor import Executor, Progress
 from .interpolation import interpolate
@@ -48,17 +50,25 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
         E_merged, full, _, unfilled = interpolate_filling_holes(scene, caster, density, sources, cache, merged,
                                                                 params, settings, executor, progress)
         E[valid] = E_merged[sample_to_point]
-        fine = _fine_samples(full, merged, sample_to_point, texel_size, params, settings, executor, progress)
+        seeing = _record_visibility(caster, params)
+        fine = _fine_samples(full, merged, sample_to_point, texel_size, params, settings, executor, progress,
+                             seeing)
         if len(fine):
             E_fine, w_fine = interpolate(full, params.a, settings.gradients, valid_points.p[fine],
-                                         valid_points.n_shading[fine], executor, progress)
+                                         valid_points.n_shading[fine], executor, progress, caster=seeing)
             covered = w_fine > 0
             E[valid[fine[covered]]] = E_fine[covered]
     stats.add(texel_points_interpolated=len(merged) + len(fine), texel_points_unfilled=unfilled)
     return E, full.take(slice(len(cache), None))
 
 
-def _fine_samples(cache, merged, sample_to_point, texel_size, params, settings, executor, progress) -> np.ndarray:
+def _record_visibility(caster, params: CacheParameters):
+    """The caster lookups test record visibility with (deviation: record-visibility), or None."""
+    return caster if params.record_visibility else None
+
+
+def _fine_samples(cache, merged, sample_to_point, texel_size, params, settings, executor, progress,
+                  caster=None) -> np.ndarray:
     """Samples whose texel lies in a zone narrower than FINE_ZONE_TEXELS texels (deviation: fine-zones).
 
     There Equation 3 changes inside a texel (zone edges are steps), so every sample gets its own
@@ -67,7 +77,7 @@ def _fine_samples(cache, merged, sample_to_point, texel_size, params, settings, 
     if not settings.deviations.fine_zones:
         return np.zeros(0, np.int64)
     _, _, smallest = interpolate(cache, params.a, settings.gradients, merged.p, merged.n_shading, executor,
-                                 progress, with_zone=True)
+                                 progress, with_zone=True, caster=caster)
     return np.flatnonzero((smallest < FINE_ZONE_TEXELS * texel_size)[sample_to_point])
 
 
@@ -78,7 +88,9 @@ def interpolate_filling_holes(scene, caster, density: PhotonDensity, sources: Ga
 
     Returns (E (m, 3), the cache with the hole records appended, hole records, samples left unfilled).
     """
-    E, w = interpolate(cache, params.a, settings.gradients, points.p, points.n_shading, executor, progress)
+    seeing = _record_visibility(caster, params)
+    E, w = interpolate(cache, params.a, settings.gradients, points.p, points.n_shading, executor, progress,
+                       caster=seeing)
     hole_records = 0
     for round_ in range(settings.deviations.hole_rounds):  # deviation: hole-rounds, docs/DEVIATIONS.md
         holes = np.flatnonzero(w <= 0)
@@ -94,11 +106,26 @@ def interpolate_filling_holes(scene, caster, density: PhotonDensity, sources: Ga
                                     stream=STREAM_REFINE_HOLES + round_)
         hole_records += len(new)
         cache = cache.extend(new)
-        E_h, w_h = interpolate(cache, params.a, settings.gradients, cand_p, cand_n, executor, progress)
+        E_h, w_h = interpolate(cache, params.a, settings.gradients, cand_p, cand_n, executor, progress,
+                               caster=seeing)
         E[holes], w[holes] = E_h, w_h
     unfilled = np.flatnonzero(w <= 0)
     if len(unfilled) and len(cache) and settings.deviations.nearest_record_fallback:
         # deviation: nearest-record-fallback, docs/DEVIATIONS.md (counted in the stats).
-        _, nearest = cKDTree(cache.p).query(points.p[unfilled])
-        E[unfilled] = cache.E[nearest]
+        E[unfilled] = nearest_record(cache, points.p[unfilled], points.n_shading[unfilled], seeing)
     return E, cache, hole_records, len(unfilled)
+
+
+def nearest_record(cache: IrradianceCache, p: np.ndarray, n: np.ndarray, caster=None) -> np.ndarray:
+    """E (m, 3) of the nearest record to each point p, n (m, 3); with ``caster`` (deviation:
+    record-visibility) the nearest of the NEAREST_RECORDS nearest that sees the point, else 0."""
+    if caster is None:
+        _, nearest = cKDTree(cache.p).query(p)
+        return cache.E[nearest]
+    k = min(NEAREST_RECORDS, len(cache))
+    _, nearest = cKDTree(cache.p).query(p, k=k)
+    nearest = nearest.reshape(len(p), k)
+    seen = ~caster.hidden_off_plane(np.repeat(p, k, axis=0), np.repeat(n, k, axis=0), cache.p[nearest.ravel()],
+                                    cache.n[nearest.ravel()]).reshape(-1, k)
+    first = nearest[np.arange(len(p)), np.argmax(seen, axis=1)]
+    return np.where(seen.any(axis=1)[:, None], cache.E[first], 0.0)

@@ -11,6 +11,7 @@ radius. A pure function of its chunk of points.
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 from itertools import chain
 
@@ -30,6 +31,9 @@ class CacheLookup:
     cache: IrradianceCache
     a: float
     use_gradients: bool = True
+    caster: object = None
+    """A :class:`core.rays.RayCaster`: with it a record off a point's tangent plane must see the point
+    (deviation: record-visibility); None accepts records by Equation 2 and their walls alone."""
     zone: np.ndarray = field(init=False, repr=False)
     clearance: np.ndarray = field(init=False, repr=False)
 
@@ -82,6 +86,8 @@ class CacheLookup:
             delta = p_r - p_k
             near_wall = ok & (np.einsum("ij,ij->i", delta, delta) >= self.clearance[rec] ** 2)
             ok[near_wall] = ~beyond_wall(c.wall[rec[near_wall]], delta[near_wall], n_k[near_wall])
+            if self.caster is not None:  # a surface between point and record hides it (a closed box's inside)
+                ok[ok] = ~self.caster.hidden_off_plane(p_r[ok], n_r[ok], p_k[ok], n_k[ok])
             rows, rec, w = rows[ok], rec[ok], w[ok]
             E_rec = record_estimate(c.E[rec], p_r[ok], n_r[ok], p_k[ok], n_k[ok],
                                     c.grad_r[rec] if self.use_gradients else None,
@@ -97,12 +103,26 @@ class CacheLookup:
 
 
 def interpolate(cache: IrradianceCache, a: float, gradients: bool, p: np.ndarray, n: np.ndarray, executor,
-                progress, with_zone: bool = False) -> tuple:
+                progress, with_zone: bool = False, caster=None) -> tuple:
     """Equation 3 at points p, n (m, 3), chunked over the executor: (E (m, 3), w_sum (m,)), plus
-    (m,) the smallest accepted zone radius ``with_zone`` (see :meth:`CacheLookup.irradiance_and_zone`)."""
+    (m,) the smallest accepted zone radius ``with_zone`` (see :meth:`CacheLookup.irradiance_and_zone`).
+
+    caster : a :class:`core.rays.RayCaster` (deviation: record-visibility, see :attr:`CacheLookup.caster`);
+        its ``rays_cast`` counts the visibility rays.
+    """
     lookup = CacheLookup(cache, a, gradients)
-    method = lookup.irradiance_and_zone if with_zone else lookup.irradiance
-    parts = executor.map_chunks(lambda index, s: method(p[s], n[s]), slices(len(p), TEXEL_CHUNK), progress)
+    views = []
+
+    def run(index, s):
+        chunk = copy.copy(lookup)  # shares the cache's arrays; a view of the BVH per chunk counts its own rays
+        if caster is not None:
+            chunk.caster = caster.serial()
+            views.append(chunk.caster)
+        return (chunk.irradiance_and_zone if with_zone else chunk.irradiance)(p[s], n[s])
+
+    parts = executor.map_chunks(run, slices(len(p), TEXEL_CHUNK), progress)
+    if caster is not None:
+        caster.rays_cast += sum(view.rays_cast for view in views)
     if not parts:
         parts = [(np.zeros((0, 3)), np.zeros(0), np.zeros(0))[:3 if with_zone else 2]]
     return tuple(np.concatenate([part[i] for part in parts]) for i in range(len(parts[0])))

@@ -117,6 +117,9 @@ class CacheParameters:
     """Records find their walls (deviation: wall-sectors); False leaves every sector open."""
     neighbour_clamp: bool = True
     """R_k <= R_j + |p_k - p_j| between records ([KBPZ06]; deviation: neighbour-clamp)."""
+    record_visibility: bool = True
+    """Records and hole records' photons off a point's tangent plane count only if they see it
+    (deviation: record-visibility)."""
 
 
 @dataclass
@@ -235,13 +238,15 @@ def _create_record(density, p_k, n_k, params: CacheParameters, clamp, caster, ca
     # estimates E_k and lends virtual rays from its whole disc: cutting those discs at every corner
     # of a room removes most of the photons a corner record has, which made Preview noisier and
     # pass 3 cast more real rays. A hole record may sit where no photon arrives (behind a thin
-    # wall); there photons past a wall would leak light in, so its estimate stops at its walls.
+    # wall); there photons past a wall would leak light in, so its estimate stops at its walls, and
+    # photons off its tangent plane that cannot see it (a closed box's inside) are not its own.
     est_wall = None if candidate_is_photon else wall
+    est_caster = caster if not candidate_is_photon and params.record_visibility else None  # deviation: record-visibility
     coverage = None
     if caster is not None and params.kernel_coverage:  # deviation: surface-coverage, docs/DEVIATIONS.md
         coverage = surface_coverage(caster, p_k, n_k, a * R_k, est_wall)
         stats.wall_rays += COVERAGE_RINGS * COVERAGE_ANGLES
-    zone, w, E_k, used = density.record(p_k, n_k, R_k, a, est_wall, coverage)
+    zone, w, E_k, used = density.record(p_k, n_k, R_k, a, est_wall, coverage, est_caster)
     if candidate_is_photon:
         return R_k, wall, E_k, used, zone, zone, w
     members = np.asarray(cand_tree.query_ball_point(p_k, a * R_k), dtype=np.int64)

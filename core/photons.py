@@ -19,7 +19,7 @@ import numpy as np
 
 from . import emission
 from .albedo import albedo as albedo_at
-from .constants import STREAM_PHOTONS
+from .constants import REFLECTED_SHARE_FLOOR, STREAM_PHOTONS, TRANSPARENT_MAX_LAYERS
 from .executor import Executor, Progress, serial_executor
 from .rays import RayCaster
 from .sampling import cosine_hemisphere, orthonormal_basis
@@ -156,18 +156,23 @@ def trace_photon_batch(scene: Scene, caster: RayCaster, origins: np.ndarray, dir
     power : (m, 3) float64 watts per photon.
     origin_normals : (m, 3) normal of the emitting surface (zero for free-space origins).
     Returns the stored hits with ``prev`` local to this batch.
+
+    A hit on a transmissive triangle (``Geometry.transmission`` tau > 0) is stored, then the
+    photon passes straight on with probability tau, keeping its power, bounce count and path
+    link (its next hit's ``d_prev`` spans the layer), or else reflects with albedo rho / (1 - tau),
+    the triangle's diffuse albedo given that it did not pass.
     """
     geometry_n = scene.geometry.face_normals()
+    # deviation: transparent-shadows, docs/DEVIATIONS.md (an opaque scene draws no extra random number)
+    tau = scene.geometry.transmission if scene.geometry.transmission.any() else None
     waves = []
-    stored = 0
-    rays = 0
-    escaped = 0
+    stored = rays = escaped = 0
     o, d, phi = origins, directions, power
-    prev = np.full(len(o), -1, np.int64)
+    m0 = len(o)
+    prev, bounce = np.full(m0, -1, np.int64), np.zeros(m0, np.int64)
+    travelled, layers = np.zeros(m0), np.zeros(m0, np.int64)  # since the previous diffuse hit
     surface_n = origin_normals
-    for bounce in range(max_bounces + 1):
-        if len(o) == 0:
-            break
+    while len(o):
         hits = caster.intersect(o, d, normals=surface_n)
         rays += len(o)
         hit = hits.hit
@@ -175,7 +180,7 @@ def trace_photon_batch(scene: Scene, caster: RayCaster, origins: np.ndarray, dir
         # t is measured from the origin pushed off its surface: start from that point, or bounced
         # photons land up to epsilon off the surface they hit (measured: 1.7e-5 of the diagonal).
         o = caster.offset_origins(o, surface_n, d)
-        o, d, phi, prev = o[hit], d[hit], phi[hit], prev[hit]
+        o, d, phi, prev, bounce, travelled, layers = (a[hit] for a in (o, d, phi, prev, bounce, travelled, layers))
         t, tri, bary = hits.t[hit], hits.triangle[hit], hits.barycentric[hit]
         m = len(tri)
         if m == 0:
@@ -187,20 +192,30 @@ def trace_photon_batch(scene: Scene, caster: RayCaster, origins: np.ndarray, dir
         n[flip] *= -1.0
         rho = albedo_at(scene, tri, bary).astype(np.float64)
         index = stored + np.arange(m)
-        waves.append((p, n, -d, phi, t, prev, np.full(m, bounce), tri, rho))
+        waves.append((p, n, -d, phi, travelled + t, prev, bounce, tri, rho))
         stored += m
-        if bounce == max_bounces:
-            break
+        if tau is None:
+            passing = np.zeros(m, bool)
+        else:
+            passing = (rng.random(m) < tau[tri]) & (layers < TRANSPARENT_MAX_LAYERS)
+            rho = np.minimum(rho / np.maximum(1.0 - tau[tri], REFLECTED_SHARE_FLOOR)[:, None], 1.0)
+        go = np.flatnonzero(passing)
+        bounced = np.flatnonzero(~passing & (bounce < max_bounces))
         # Russian roulette on the albedo: survive with q = max channel, carry power * rho / q.
-        q = rho.max(axis=1)
-        survive = rng.random(m) < q
-        o = p[survive]
-        phi = phi[survive] * rho[survive] / q[survive, None]
-        prev = index[survive]
-        surface_n = n[survive]
-        local = cosine_hemisphere(rng.random((len(o), 2)))[0]
-        t1, t2 = orthonormal_basis(surface_n)
-        d = local[:, :1] * t1 + local[:, 1:2] * t2 + local[:, 2:3] * surface_n
+        q = rho[bounced].max(axis=1)
+        bounced = bounced[rng.random(len(bounced)) < q]
+        q = rho[bounced].max(axis=1)
+        local = cosine_hemisphere(rng.random((len(bounced), 2)))[0]
+        t1, t2 = orthonormal_basis(n[bounced])
+        d_bounced = local[:, :1] * t1 + local[:, 1:2] * t2 + local[:, 2:3] * n[bounced]
+        o = np.concatenate([p[go], p[bounced]])
+        d = np.concatenate([d[go], d_bounced])
+        phi = np.concatenate([phi[go], phi[bounced] * rho[bounced] / q[:, None]])
+        prev = np.concatenate([prev[go], index[bounced]])
+        bounce = np.concatenate([bounce[go], bounce[bounced] + 1])
+        travelled = np.concatenate([travelled[go] + t[go], np.zeros(len(bounced))])
+        layers = np.concatenate([layers[go] + 1, layers[bounced]])
+        surface_n = np.concatenate([n[go], n[bounced]])
     photons = _assemble(waves, stored)
     return PhotonBatchResult(photons, rays, escaped)
 

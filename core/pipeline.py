@@ -83,6 +83,8 @@ def bake(scene: Scene, settings: BakeSettings, progress: Progress | None = None,
     progress = progress or Progress()
     own_executor = executor is None
     executor = executor or Executor(settings.threads or default_workers())
+    if not settings.deviations.transparent_shadows:  # deviation: transparent-shadows, docs/DEVIATIONS.md
+        scene = replace(scene, geometry=replace(scene.geometry, transmission=None))  # every triangle opaque
     run = _Run(scene, settings, progress, executor, BakeStats(), cache if cache is not None else NoBakeCache())
     try:
         return _bake(run)
@@ -131,7 +133,8 @@ class _Run:
         if self._caster is None:
             self.progress.begin("Building BVH")
             with self.stats.stage("bvh"):
-                self._caster = RayCaster(self.scene.geometry.positions, self.scene.extent, self.executor)
+                g = self.scene.geometry
+                self._caster = RayCaster(g.positions, self.scene.extent, self.executor, g.transmission)
         return self._caster
 
 
@@ -221,7 +224,8 @@ def cache_parameters(scene: Scene, rasters, settings: BakeSettings) -> CachePara
     deviations = settings.deviations
     return CacheParameters(a=settings.a, r_nearest=settings.r_nearest, R_min=max(R_min, R_MIN_FLOOR * scene.extent),
                            R_max=R_max, kernel_coverage=deviations.surface_coverage and not settings.refine,
-                           wall_sectors=deviations.wall_sectors, neighbour_clamp=deviations.neighbour_clamp)
+                           wall_sectors=deviations.wall_sectors, neighbour_clamp=deviations.neighbour_clamp,
+                           record_visibility=deviations.record_visibility)
 
 
 # --------------------------------------------------------------------------- direct light
@@ -260,7 +264,7 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
     photon_bounces = settings.max_bounces - 1 if settings.refine else settings.max_bounces
     photon_key = store.key("photons", run.transport(), settings.photons, photon_bounces, settings.seed)
     cache_key = store.key("cache", photon_key, params, settings.refine, settings.hemisphere_theta,
-                          settings.hemisphere_phi, settings.reuse_photon_paths)
+                          settings.hemisphere_phi, settings.reuse_photon_paths, settings.deviations)
     passes: list = []  # (cache, photons, lighting) once computed or read, plus what holes read
 
     def passes_1_to_3():

@@ -47,7 +47,7 @@ def unit_face_normals(positions: np.ndarray) -> np.ndarray:
 class Geometry:
     """All triangles of the scene, baked or not (struct of arrays, T triangles).
 
-    Memory: 72 + 36 + 24 + 4 + 4 = 140 bytes per triangle.
+    Memory: 72 + 36 + 24 + 4 + 4 + 4 = 144 bytes per triangle.
 
     Attributes
     ----------
@@ -60,6 +60,10 @@ class Geometry:
     target : (T,) int32, index into :attr:`Scene.targets` of the bake target the
         triangle belongs to, or -1 for occluder-only geometry (instances, objects
         not selected for baking).
+    transmission : (T,) float32 in [0, 1], the probability that a shadow ray or a
+        photon passes straight through the triangle (Cycles' transparent shadows:
+        1 - Alpha, Principled Transmission, ray visibility Shadow off); None -> 0,
+        every triangle opaque.
     """
 
     positions: np.ndarray
@@ -67,6 +71,7 @@ class Geometry:
     uvs: np.ndarray
     material: np.ndarray
     target: np.ndarray
+    transmission: np.ndarray | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "positions", _require(self.positions, "positions", np.float64, (3, 3)))
@@ -74,8 +79,13 @@ class Geometry:
         object.__setattr__(self, "uvs", _require(self.uvs, "uvs", np.float32, (3, 2)))
         object.__setattr__(self, "material", _require(self.material, "material", np.int32, ()))
         object.__setattr__(self, "target", _require(self.target, "target", np.int32, ()))
+        tau = np.zeros(len(self.positions), np.float32) if self.transmission is None else self.transmission
+        tau = _require(tau, "transmission", np.float32, ())
+        if not np.isfinite(tau).all() or tau.min(initial=0.0) < 0 or tau.max(initial=0.0) > 1:
+            raise SceneError("geometry.transmission must lie in [0, 1]")
+        object.__setattr__(self, "transmission", tau)
         n = len(self.positions)
-        for name in ("normals", "uvs", "material", "target"):
+        for name in ("normals", "uvs", "material", "target", "transmission"):
             if len(getattr(self, name)) != n:
                 raise SceneError(f"geometry.{name} has {len(getattr(self, name))} rows, positions has {n}")
         if not np.isfinite(self.positions).all():

@@ -44,6 +44,12 @@ class Deviations:
     """Rounds of hole records (section 3.4); the paper places them once."""
     nearest_record_fallback: bool = True
     """Texel samples still uncovered after the hole rounds take the nearest record's E_k."""
+    record_visibility: bool = True
+    """A record (or a hole record's photon) off a texel sample's tangent plane counts only if it
+    sees the sample: no light from a closed box's inside onto the floor under it."""
+    transparent_shadows: bool = True
+    """Shadow rays and photons pass transmissive triangles (Geometry.transmission), as Cycles'
+    transparent shadows; off, every triangle is opaque."""
 
 
 @dataclass(frozen=True)
@@ -109,7 +115,7 @@ class BakeSettings:
             raise ValueError(f"quality must be one of {QUALITIES}, got {self.quality!r}")
         checks = {
             "photons": self.photons >= 0,
-            "max_bounces": self.max_bounces >= 1,
+            "max_bounces": 1 <= self.max_bounces <= 255,  # core/photons.py counts bounces in a uint8
             "a": 0.0 < self.a <= 2.0,
             "r_nearest": self.r_nearest >= 1,
             "hemisphere_theta": self.hemisphere_theta >= 1,

@@ -24,6 +24,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
@@ -39,6 +40,8 @@ ALGORITHM_VERSION = 2
 # Chart-option variants tried in turn when the xatlas child process crashes
 # (see core.xatlas_charts.chart_options).
 CHART_VARIANTS = 2
+EXIT_GRACE_SECONDS = 10.0
+"""How long the child may take to exit after writing its answer before it is killed."""
 # How often a waiting unwrap asks ``cancelled()`` (seconds).
 POLL_SECONDS = 0.05
 
@@ -324,12 +327,19 @@ def _run_child(folder: Path, cancelled) -> int:
         child = subprocess.Popen([python_interpreter(), "-I", str(worker), str(folder)], stdin=subprocess.DEVNULL,
                                  stdout=subprocess.DEVNULL, stderr=err, env=env)
         try:
+            answered = None
             while True:
                 try:
                     return child.wait(timeout=POLL_SECONDS)
                 except subprocess.TimeoutExpired:
                     if cancelled is not None and cancelled():
                         raise Cancelled("unwrap cancelled") from None
+                    # The answer is written: a child still alive after that is stuck tearing xatlas
+                    # down (seen once: xatlas::Destroy waiting for its threads); its answer stands.
+                    if answered is None and (folder / "status.json").is_file():
+                        answered = time.monotonic()
+                    if answered is not None and time.monotonic() - answered > EXIT_GRACE_SECONDS:
+                        return 0
         finally:
             if child.poll() is None:
                 child.kill()

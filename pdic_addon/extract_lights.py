@@ -78,6 +78,69 @@ def light_power(light) -> np.ndarray:
     return float(light.energy) * 2.0 ** float(getattr(light, "exposure", 0.0)) * color
 
 
+def _point(light, M: np.ndarray, name: str, power: np.ndarray, warnings: list) -> PointLight:
+    """A POINT light: position, power, soft radius (a uniform sphere when Soft Falloff is off)."""
+    return PointLight(name=name, position=M[:3, 3].copy(), power=power, radius=float(light.shadow_soft_size),
+                      soft_falloff=_soft_falloff(light))
+
+
+def _spot(light, M: np.ndarray, name: str, power: np.ndarray, warnings: list) -> SpotLight:
+    """A SPOT light: a point light masked by its cone, pointing down the object's -Z."""
+    return SpotLight(
+        name=name,
+        position=M[:3, 3].copy(),
+        direction=_unit(-M[:3, 2], f"light {name!r}"),
+        power=power,
+        half_angle=0.5 * float(light.spot_size),
+        blend=float(light.spot_blend),
+        radius=float(light.shadow_soft_size),
+        soft_falloff=_soft_falloff(light),
+    )
+
+
+def _sun(light, M: np.ndarray, name: str, power: np.ndarray, warnings: list) -> SunLight:
+    """A SUN light: strength as irradiance, from the object's +Z, angular diameter ``angle``."""
+    return SunLight(name=name, direction=_unit(M[:3, 2], f"light {name!r}"), irradiance=power,
+                    half_angle=0.5 * float(light.angle))
+
+
+def _area(light, M: np.ndarray, name: str, power: np.ndarray, warnings: list) -> AreaLight | None:
+    """An AREA light: sizes times the object's X/Y scale, emitting down -Z, radiance P / (pi A)."""
+    scale_u = float(np.linalg.norm(M[:3, 0]))
+    scale_v = float(np.linalg.norm(M[:3, 1]))
+    size_u = float(light.size) * scale_u
+    size_v = float(light.size_y if light.shape in ("RECTANGLE", "ELLIPSE") else light.size) * scale_v
+    if getattr(light, "spread", math.pi) < math.pi - 1e-6:
+        warnings.append(f"light {name!r}: area light spread below 180 degrees is ignored (emits as a full Lambertian)")
+    area = AreaLight(
+        name=name,
+        position=M[:3, 3].copy(),
+        normal=_unit(-M[:3, 2], f"light {name!r}"),
+        axis_u=_unit(M[:3, 0], f"light {name!r}"),
+        axis_v=_unit(M[:3, 1], f"light {name!r}"),
+        size_u=size_u,
+        size_v=size_v,
+        shape=light.shape,
+        radiance=np.zeros(3),
+    )
+    if area.area <= 0:
+        warnings.append(f"light {name!r}: area light of zero size ignored")
+        return None
+    # Light.normalize (default True): power is spread over the area, L = P / (pi A);
+    # off: L = P / pi, whatever the size (measured: Cycles 5.0, sizes 0.5, 1, 2 m).
+    divisor = area.area if getattr(light, "normalize", True) else 1.0
+    return replace(area, radiance=power / (math.pi * divisor))
+
+
+def _soft_falloff(light) -> bool:
+    """False when a point/spot of radius > 0 has Soft Falloff off (a uniform sphere)."""
+    return bool(getattr(light, "use_soft_falloff", True)) or float(light.shadow_soft_size) <= 0
+
+
+LIGHT_BUILDERS = {"POINT": _point, "SPOT": _spot, "SUN": _sun, "AREA": _area}
+"""Blender light type -> builder(light, matrix_world (4, 4), name, power (3,), warnings) -> core light or None."""
+
+
 def extract_light(light, matrix_world: np.ndarray, name: str, warnings: list):
     """One Blender light as a core light, in world coordinates.
 
@@ -92,63 +155,22 @@ def extract_light(light, matrix_world: np.ndarray, name: str, warnings: list):
     -------
     PointLight | SpotLight | SunLight | AreaLight, or None for an unsupported type.
     """
-    M = np.asarray(matrix_world, np.float64)
-    position = M[:3, 3].copy()
+    build = LIGHT_BUILDERS.get(light.type)
+    if build is None:
+        warnings.append(f"light {name!r}: unsupported light type {light.type!r} ignored")
+        return None
     power = light_power(light)
     if np.any(power < 0):
         warnings.append(f"light {name!r}: negative power/strength clamped to 0")
         power = np.maximum(power, 0.0)
-    power = power * normalize_factor(light)
-    sphere = light.type in ("POINT", "SPOT") and not getattr(light, "use_soft_falloff", True) \
-        and float(light.shadow_soft_size) > 0
-    if light.type == "POINT":
-        return PointLight(name=name, position=position, power=power, radius=float(light.shadow_soft_size),
-                          soft_falloff=not sphere)
-    if light.type == "SPOT":
-        return SpotLight(
-            name=name,
-            position=position,
-            direction=_unit(-M[:3, 2], f"light {name!r}"),
-            power=power,
-            half_angle=0.5 * float(light.spot_size),
-            blend=float(light.spot_blend),
-            radius=float(light.shadow_soft_size),
-            soft_falloff=not sphere,
-        )
-    if light.type == "SUN":
-        return SunLight(
-            name=name,
-            direction=_unit(M[:3, 2], f"light {name!r}"),
-            irradiance=power,
-            half_angle=0.5 * float(light.angle),
-        )
-    if light.type == "AREA":
-        scale_u = float(np.linalg.norm(M[:3, 0]))
-        scale_v = float(np.linalg.norm(M[:3, 1]))
-        size_u = float(light.size) * scale_u
-        size_v = float(light.size_y if light.shape in ("RECTANGLE", "ELLIPSE") else light.size) * scale_v
-        if getattr(light, "spread", math.pi) < math.pi - 1e-6:
-            warnings.append(f"light {name!r}: area light spread below 180 degrees is ignored (emits as a full Lambertian)")
-        area = AreaLight(
-            name=name,
-            position=position,
-            normal=_unit(-M[:3, 2], f"light {name!r}"),
-            axis_u=_unit(M[:3, 0], f"light {name!r}"),
-            axis_v=_unit(M[:3, 1], f"light {name!r}"),
-            size_u=size_u,
-            size_v=size_v,
-            shape=light.shape,
-            radiance=np.zeros(3),
-        )
-        if area.area <= 0:
-            warnings.append(f"light {name!r}: area light of zero size ignored")
-            return None
-        # Light.normalize (default True): power is spread over the area, L = P / (pi A);
-        # off: L = P / pi, whatever the size (measured: Cycles 5.0, sizes 0.5, 1, 2 m).
-        divisor = area.area if getattr(light, "normalize", True) else 1.0
-        return replace(area, radiance=power / (math.pi * divisor))
-    warnings.append(f"light {name!r}: unsupported light type {light.type!r} ignored")
-    return None
+    return build(light, np.asarray(matrix_world, np.float64), name, power * normalize_factor(light), warnings)
+
+
+def recentre_light(light, origin_world: np.ndarray):
+    """``light`` with its position moved to scene-local coordinates (a sun has none)."""
+    if not hasattr(light, "position"):
+        return light
+    return replace(light, position=light.position - origin_world)
 
 
 def extract_world(world, warnings: list) -> World:

@@ -8,7 +8,15 @@ warning naming the material):
   BSDF (Color) or an Emission shader (Color x Strength; it reflects nothing);
 * a colour input is either its constant ``default_value`` or an Image Texture
   node linked directly into it (its Color output), read once through
-  ``Image.pixels.foreach_get``; reroute nodes in between are followed.
+  ``Image.pixels.foreach_get``; reroute nodes in between are followed;
+* what light passes (Cycles' transparent shadows, ``Geometry.transmission``):
+  a Principled BSDF of Alpha a and Transmission Weight w passes
+  tau = 1 - a (1 - w) of the light straight through and reflects diffusely
+  a (1 - w) Base Color; its emission is a x Emission. A Transparent BSDF passes
+  the mean of its Color. Glass counts as straight transmission: no refraction,
+  no Fresnel reflection, no tint (measured against Cycles 5.0 under a point light
+  3 m above: a glass cube leaves 0.91, a single glass sheet 0.67 of the unshadowed
+  floor; PDIC leaves 1.0). Alpha or Transmission driven by a texture uses the constant.
 
 Defaults: an unknown shader is :data:`DEFAULT_BASE_COLOR` grey with no
 emission (Blender's default surface); an empty slot or an object without
@@ -99,6 +107,7 @@ class MaterialTable:
         self._textures: list = []         # core.scene.Texture
         self._texture_index: dict = {}    # (image session_uid, interpolation) -> texture row
         self._uv_map: list = []           # per row: UV map named by the texture's UV Map node ("" = render map)
+        self._transmission: list = []     # per row: tau, the fraction of light passing straight through
         self._pending_uv_map = ""
 
     # ------------------------------------------------------------------ public
@@ -109,14 +118,19 @@ class MaterialTable:
         if key not in self._index:
             self._pending_uv_map = ""
             if material is None:
-                row = ("default", DEFAULT_BASE_COLOR, -1, (0.0, 0.0, 0.0))
+                row = ("default", DEFAULT_BASE_COLOR, -1, (0.0, 0.0, 0.0), 0.0)
             else:
                 row = self._read_material(material)
             self._index[key] = len(self._names)
-            for column, value in zip((self._names, self._base_color, self._texture, self._emission), row):
+            columns = (self._names, self._base_color, self._texture, self._emission, self._transmission)
+            for column, value in zip(columns, row):
                 column.append(value)
             self._uv_map.append(self._pending_uv_map)
         return self._index[key]
+
+    def transmission_of(self, rows: np.ndarray) -> np.ndarray:
+        """(t,) float32 tau in [0, 1] of material ``rows`` (t,): 0 opaque, 1 fully transparent."""
+        return np.array(self._transmission, np.float32)[rows] if len(rows) else np.zeros(0, np.float32)
 
     def name_of(self, row: int) -> str:
         """Material name of ``row`` (for messages)."""
@@ -145,36 +159,51 @@ class MaterialTable:
         self.warnings.append(message)
 
     def _read_material(self, mat):
-        """(name, base_color, texture, emission) of one material."""
+        """(name, base_color, texture, emission, transmission tau) of one material."""
         name = mat.name
+        black = (0.0, 0.0, 0.0)
         tree = mat.node_tree
         if tree is None or (USE_NODES_FLAG and not mat.use_nodes):
             # Cycles renders a node-less material as a diffuse BSDF of its viewport colour.
-            return name, tuple(mat.diffuse_color[:3]), -1, (0.0, 0.0, 0.0)
+            return name, tuple(mat.diffuse_color[:3]), -1, black, 0.0
         out = _output_node(tree, "OUTPUT_MATERIAL")
         if out is None:
             self._warn(f"material {name!r}: no material output node; using default grey {DEFAULT_BASE_COLOR[0]}")
-            return name, DEFAULT_BASE_COLOR, -1, (0.0, 0.0, 0.0)
+            return name, DEFAULT_BASE_COLOR, -1, black, 0.0
         fed = _linked_node(out.inputs["Surface"])
         if fed is None:
             self._warn(f"material {name!r}: nothing connected to the Surface output; it renders black")
-            return name, (0.0, 0.0, 0.0), -1, (0.0, 0.0, 0.0)
+            return name, black, -1, black, 0.0
         node = fed[0]
         if node.type == "BSDF_PRINCIPLED":
-            base, tex = self._color(node.inputs["Base Color"], name, "Base Color")
-            emission = self._emitted(node.inputs["Emission Color"], node.inputs["Emission Strength"], name)
-            return name, base, tex, emission
+            return self._principled(node, name)
         if node.type == "BSDF_DIFFUSE":
             base, tex = self._color(node.inputs["Color"], name, "Color")
-            return name, base, tex, (0.0, 0.0, 0.0)
+            return name, base, tex, black, 0.0
         if node.type == "EMISSION":
             emission = self._emitted(node.inputs["Color"], node.inputs["Strength"], name)
-            return name, (0.0, 0.0, 0.0), -1, emission
+            return name, black, -1, emission, 0.0
+        if node.type == "BSDF_TRANSPARENT":
+            color = self._constant(node.inputs["Color"], name, "Color")
+            return name, black, -1, black, float(np.clip(np.mean(color), 0.0, 1.0))
         self._warn(
             f"material {name!r}: unsupported shader node {node.name!r} ({node.bl_idname}) on the Surface output; "
             f"using default grey {DEFAULT_BASE_COLOR[0]}, no emission"
         )
-        return name, DEFAULT_BASE_COLOR, -1, (0.0, 0.0, 0.0)
+        return name, DEFAULT_BASE_COLOR, -1, black, 0.0
+
+    def _principled(self, node, name: str):
+        """(name, base_color, texture, emission, tau) of a Principled BSDF: Alpha and Transmission pass light."""
+        base, tex = self._color(node.inputs["Base Color"], name, "Base Color")
+        emission = self._emitted(node.inputs["Emission Color"], node.inputs["Emission Strength"], name)
+        alpha = float(np.clip(self._constant(node.inputs["Alpha"], name, "Alpha"), 0.0, 1.0))
+        weight = float(np.clip(self._constant(node.inputs["Transmission Weight"], name, "Transmission Weight"), 0.0, 1.0))
+        diffuse = alpha * (1.0 - weight)
+        base = tuple(c * diffuse for c in base)
+        if tex >= 0 and diffuse < 1.0:
+            self._warn(f"material {name!r}: Alpha/Transmission scale a textured Base Color, which is not "
+                       f"supported; its reflection is the texture's, unscaled")
+        return name, base, tex, tuple(c * alpha for c in emission), 1.0 - diffuse
 
     def _constant(self, socket, name: str, what: str):
         """The socket's default value (rgb tuple or float), warning if something is linked into it."""
@@ -197,10 +226,16 @@ class MaterialTable:
         return constant, self._texture_row(node, name)
 
     def _emitted(self, color_socket, strength_socket, name: str):
-        """Emitted radiance (rgb) = Emission Color x Emission Strength, constants only."""
+        """Emitted radiance (rgb) = Emission Color x Emission Strength, constants only; negative -> 0, warned."""
         color = self._constant(color_socket, name, color_socket.name)
         strength = self._constant(strength_socket, name, strength_socket.name)
-        return tuple(float(c) * strength for c in color)
+        radiance = tuple(float(c) * strength for c in color)
+        if min(radiance) < 0:
+            self._warn(f"material {name!r}: negative emission ({strength_socket.name} {strength:g} x "
+                       f"{color_socket.name} {tuple(round(float(c), 4) for c in color)}) is not supported "
+                       "(light cannot be subtracted); its negative channels emit nothing")
+            radiance = tuple(max(c, 0.0) for c in radiance)
+        return radiance
 
     def _texture_row(self, node, material_name: str) -> int:
         """Row of the texture read from an Image Texture node, or -1 (with a warning) if unusable."""

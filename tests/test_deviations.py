@@ -78,3 +78,14 @@ def test_default_deviations_are_todays_bake(default):
     result, _ = _bake(FINAL, **{f: getattr(Deviations(), f) for f in Deviations.__dataclass_fields__})
     for name in result.lightmaps:
         np.testing.assert_array_equal(result.lightmaps[name], default[0].lightmaps[name])
+
+
+def test_a_cached_bake_is_not_reused_for_other_deviations(tmp_path, default):
+    from pdic.core.bake_cache import BakeCache
+
+    store = BakeCache(tmp_path / "cache")
+    bake(_box(), FINAL, cache=store)
+    switched = bake(_box(), replace(FINAL, deviations=Deviations(harmonic_cell_radiance=False)), cache=store)
+    alone, _ = _bake(FINAL, harmonic_cell_radiance=False)
+    for name in alone.lightmaps:
+        np.testing.assert_array_equal(switched.lightmaps[name], alone.lightmaps[name])

@@ -473,3 +473,106 @@ def test_target_that_lost_its_lightmap_uv_is_an_error(blender):
     add_light(blender, "Lamp")
     with pytest.raises(SceneError, match=f"Remeshed.*{LM}"):
         run(blender, [ob])
+
+
+# --------------------------------------------------------------------------- copies, curves, shadows (issue 14)
+def _unique_lightmap_uv(mesh):
+    """Give every face of ``mesh`` its own cell of a 4x4 grid in the light-map UV map (an unwrap's layout)."""
+    layer = mesh.uv_layers[LM]
+    for i, poly in enumerate(mesh.polygons):
+        cell = np.array([i % 4, i // 4], float) / 4
+        square = [(0.02, 0.02), (0.23, 0.02), (0.23, 0.23), (0.02, 0.23)]
+        for corner, loop in zip(square, poly.loop_indices):
+            layer.uv[loop].vector = tuple(cell + corner)
+
+
+@pytest.mark.parametrize("kind", ["ARRAY", "MIRROR"])
+def test_modifier_copies_sharing_lightmap_texels_are_refused_naming_the_modifier(blender, kind):
+    shifted = [(x + 2, y, z) for x, y, z in CUBE_VERTS]  # off the mirror plane: the copy is a second box
+    ob = add_mesh(blender, "Pillar", shifted)
+    _unique_lightmap_uv(ob.data)
+    other = add_mesh(blender, "Floor", QUAD_VERTS, QUAD_FACES, location=(0, 0, -2))
+    add_light(blender, "Lamp")
+    assert run(blender, [ob, other]).target_objects == ["Pillar", "Floor"]  # unmodified: baked
+    ob.modifiers.new("Copies", kind)
+    ex = run(blender, [ob, other])
+    assert ex.target_objects == ["Floor"]
+    assert any("Pillar" in w and "'Copies' (" + kind + ")" in w and "Apply" in w for w in ex.warnings)
+    assert (ex.scene.geometry.target == -1).sum() == 24  # both copies still cast shadows
+    with pytest.raises(SceneError, match="Pillar.*Copies"):
+        run(blender, [ob])
+
+
+def test_subdivided_copy_of_an_overlapping_uv_layout_is_not_refused(blender):
+    ob = add_mesh(blender, "Smooth")  # every face on the whole UV square: overlapping before any modifier
+    ob.modifiers.new("Subdivision", "SUBSURF").levels = 1
+    add_light(blender, "Lamp")
+    ex = run(blender, [ob])
+    assert ex.target_objects == ["Smooth"] and len(ex.scene.targets[0].triangles) == 48
+
+
+@pytest.mark.parametrize("kind", ["CURVE", "FONT"])
+def test_curve_and_text_objects_are_extracted_once(blender, kind):
+    target = add_mesh(blender, "Target", QUAD_VERTS, QUAD_FACES)
+    data = blender.data.curves.new("Shape", kind)
+    if kind == "CURVE":
+        data.bevel_depth = 0.1
+        spline = data.splines.new("POLY")
+        spline.points.add(1)
+        spline.points[1].co = (1, 0, 0, 1)
+    else:
+        data.body = "Hi"
+        data.extrude = 0.05
+    shape = blender.data.objects.new("Shape", data)
+    blender.context.scene.collection.objects.link(shape)
+    add_light(blender, "Lamp")
+    mesh = shape.evaluated_get(blender.context.evaluated_depsgraph_get()).to_mesh()
+    expected = len(mesh.loop_triangles)
+    shape.evaluated_get(blender.context.evaluated_depsgraph_get()).to_mesh_clear()
+    ex = run(blender, [target])
+    assert expected > 10
+    assert (ex.scene.geometry.target == -1).sum() == expected  # once, not the object and its mesh instance
+
+
+def test_alpha_and_transmission_let_light_through_and_scale_reflection(blender):
+    glass, glass_bsdf = principled(blender, "Glass")
+    glass_bsdf.inputs["Transmission Weight"].default_value = 1.0
+    veil, veil_bsdf = principled(blender, "Veil")
+    veil_bsdf.inputs["Alpha"].default_value = 0.25
+    veil_bsdf.inputs["Base Color"].default_value = (0.8, 0.4, 0.2, 1.0)
+    veil_bsdf.inputs["Emission Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    veil_bsdf.inputs["Emission Strength"].default_value = 2.0
+    a = add_mesh(blender, "A", QUAD_VERTS, QUAD_FACES, material=glass)
+    add_mesh(blender, "B", QUAD_VERTS, QUAD_FACES, location=(3, 0, 0), material=veil)
+    add_mesh(blender, "C", QUAD_VERTS, QUAD_FACES, location=(6, 0, 0))
+    ex = run(blender, [a])
+    g, m = ex.scene.geometry, ex.scene.materials
+    rows = {name: i for i, name in enumerate(m.names)}
+    tau = {name: g.transmission[g.material == row] for name, row in rows.items()}
+    np.testing.assert_allclose(tau["Glass"], 1.0)
+    np.testing.assert_allclose(tau["Veil"], 0.75)
+    np.testing.assert_allclose(tau["default"], 0.0)
+    np.testing.assert_allclose(m.base_color[rows["Glass"]], 0.0)  # no diffuse lobe left
+    np.testing.assert_allclose(m.base_color[rows["Veil"]], [0.2, 0.1, 0.05], atol=1e-6)
+    np.testing.assert_allclose(m.emission[rows["Veil"]], 0.5, atol=1e-6)  # alpha mixes emission too
+
+
+def test_shadow_visibility_off_makes_an_object_fully_transmissive(blender):
+    floor = add_mesh(blender, "Floor", QUAD_VERTS, QUAD_FACES)
+    blocker = add_mesh(blender, "Blocker", location=(0, 0, 2))
+    blocker.visible_shadow = False
+    add_light(blender, "Lamp")
+    g = run(blender, [floor]).scene.geometry
+    np.testing.assert_allclose(g.transmission[g.target == -1], 1.0)
+    np.testing.assert_allclose(g.transmission[g.target == 0], 0.0)
+
+
+def test_negative_emission_warns_naming_the_material(blender):
+    mat, bsdf = principled(blender, "AntiGlow")
+    bsdf.inputs["Emission Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    bsdf.inputs["Emission Strength"].default_value = -3.0
+    ob = add_mesh(blender, "A", QUAD_VERTS, QUAD_FACES, material=mat)
+    add_light(blender, "Lamp")
+    ex = run(blender, [ob])
+    assert any("AntiGlow" in w and "negative emission" in w for w in ex.warnings)
+    np.testing.assert_allclose(ex.scene.materials.emission, 0.0)

@@ -1,8 +1,10 @@
 """The extension package: manifest, build and install through Blender's own machinery.
 
-The build downloads the linux-x64 wheels once (PyPI) into the wheel cache
-(``~/.cache/pdic/wheels`` or ``$PDIC_WHEEL_CACHE``) and reuses them afterwards.
-The install runs in a subprocess with its own ``BLENDER_USER_RESOURCES``, so the
+The build downloads the linux-x64 wheels (cp311 and cp313) once (PyPI) into the wheel
+cache (``~/.cache/pdic/wheels`` or ``$PDIC_WHEEL_CACHE``) and reuses them afterwards.
+The zip is installed into every Blender of tools/blender_matrix.py built for the Python
+running this suite (3.11: 4.2, 4.5, 5.0; 3.13: 5.1, 5.2), each in its own venv holding
+only bpy and numpy, in a subprocess with its own ``BLENDER_USER_RESOURCES``, so the
 test session's Blender never sees the installed extension.
 """
 from __future__ import annotations
@@ -10,6 +12,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -27,14 +30,22 @@ BUNDLED = ("scipy", "embreex", "xatlas")
 SUN_STRENGTH = 3.0
 
 
-def _load_build_tool():
-    spec = importlib.util.spec_from_file_location("pdic_build_extension", ROOT / "tools" / "build_extension.py")
+def _load_tool(name: str):
+    spec = importlib.util.spec_from_file_location(f"pdic_{name}", ROOT / "tools" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up there
     spec.loader.exec_module(module)
     return module
 
 
-build_extension = _load_build_tool()
+build_extension = _load_tool("build_extension")
+blender_matrix = _load_tool("blender_matrix")
+# The Blenders whose Python runs this suite; the other Python's suite installs into the others.
+BLENDERS = blender_matrix.for_python()
+
+
+def _version(text: str) -> tuple[int, ...]:
+    return tuple(int(part) for part in text.split("."))
 
 
 def blender_ext(*args: str) -> subprocess.CompletedProcess:
@@ -78,11 +89,33 @@ def test_validator_rejects_a_tag_blender_does_not_know(tmp_path):
 
 def test_source_manifest_declares_what_the_extension_is():
     manifest = tomllib.loads((ROOT / "blender_manifest.toml").read_text())
-    assert (manifest["id"], manifest["type"], manifest["blender_version_min"]) == ("pdic", "add-on", "4.2.0")
+    assert (manifest["id"], manifest["type"]) == ("pdic", "add-on")
     assert "wheels" not in manifest, "wheels are added by tools/build_extension.py, never listed in the source"
     excluded = manifest["build"]["paths_exclude_pattern"]
     for pattern in ("/tests/", "/bench/", "/tools/", "/.ci/", "/.venv/", "/sample_blends/", "/dist/", "__pycache__/"):
         assert pattern in excluded
+
+
+def test_manifest_admits_every_tested_blender_from_the_first_4_2_that_filters_wheels_by_python():
+    """min: the oldest tested 4.2, which filters wheels by Python (4.2.0 does not);
+    max (exclusive): the release after the newest tested."""
+    manifest = tomllib.loads((ROOT / "blender_manifest.toml").read_text())
+    low, high = _version(manifest["blender_version_min"]), _version(manifest["blender_version_max"])
+    tested = sorted(_version(b.bpy) for b in blender_matrix.BLENDERS)
+    assert low == tested[0] == (4, 2, 13)
+    assert all(low <= v < high for v in tested)
+    newest = tested[-1]
+    assert high == (newest[0], newest[1] + 1, 0), "the maximum admits every patch of the newest tested line, no more"
+    # Every Blender line from 4.2 LTS to the newest is tested: 4.2, 4.5, 5.0, 5.1, 5.2.
+    assert [b.line for b in blender_matrix.BLENDERS] == ["4.2 LTS", "4.5 LTS", "5.0", "5.1", "5.2 LTS"]
+
+
+def test_every_bundled_wheel_is_pinned_for_both_blender_pythons():
+    pins = {py: build_extension.pinned_versions(requirements=path)
+            for py, path in build_extension.BLENDER_PYTHONS.items()}
+    assert sorted(pins) == ["3.11", "3.13"]
+    assert sorted(blender_matrix.REQUIREMENTS) == sorted(pins)
+    assert {b.python for b in blender_matrix.BLENDERS} == set(pins)
 
 
 def test_linux_build_holds_package_and_wheels_but_no_dev_files(built_zip):
@@ -95,15 +128,18 @@ def test_linux_build_holds_package_and_wheels_but_no_dev_files(built_zip):
             if "__pycache__" not in path.parts:
                 assert path.relative_to(ROOT).as_posix() in names, f"{path} missing from {built_zip.name}"
     assert "__init__.py" in names
-    # The bundled wheels, for this platform only; numpy comes with Blender.
+    # The bundled wheels, for this platform only, one per Blender Python; numpy comes with Blender.
     wheels = [n for n in names if n.endswith(".whl")]
-    assert sorted(Path(w).name.split("-")[0] for w in wheels) == sorted(BUNDLED)
-    assert all(w.startswith("wheels/") and "cp311" in w and "x86_64" in w for w in wheels), wheels
+    assert sorted((Path(w).name.split("-")[0], Path(w).name.split("-")[2]) for w in wheels) == sorted(
+        (name, tag) for name in BUNDLED for tag in ("cp311", "cp313"))
+    assert all(w.startswith("wheels/") and "x86_64" in w for w in wheels), wheels
+    assert sorted(inner["wheels"]) == sorted(f"./{w}" for w in wheels)
     assert inner["build"]["generated"]["platforms"] == [PLATFORM]
     # Nothing from development.
     dev = [n for n in names if n.split("/")[0] in {"tests", "bench", "tools", ".ci", ".venv", "sample_blends", "out",
                                                    "dist", "build", "pdic_bootstrap.py", "pdic_bake.py",
-                                                   "requirements.txt", "DEVELOPERS.md", "README.md", ".gitignore"}
+                                                   "requirements.txt", "requirements-py313.txt", "DEVELOPERS.md",
+                                                   "README.md", ".gitignore"}
            or "__pycache__" in n or n.endswith(".pyc")]
     assert dev == [], f"development files in the extension: {dev}"
 
@@ -120,7 +156,8 @@ import json, os, sys, time, traceback
 import bpy
 
 zip_path, work, sun_strength = sys.argv[1], sys.argv[2], float(sys.argv[3])
-report = {"errors": {}}
+report = {"errors": {}, "blender_version": "%d.%d.%d" % bpy.app.version,
+          "python": "%d.%d" % sys.version_info[:2]}
 
 def step(name, fn):
     t0 = time.perf_counter()
@@ -143,6 +180,14 @@ report["addons"] = [a.module for a in bpy.context.preferences.addons]
 site = os.path.join(bpy.utils.user_resource("EXTENSIONS"), ".local", "lib",
                     "python%d.%d" % sys.version_info[:2], "site-packages")
 report["site_packages"] = sorted(os.listdir(site)) if os.path.isdir(site) else []
+report["site_directory"] = site
+# The tags of each unpacked wheel (its WHEEL file): which Python's wheels Blender chose.
+report["wheel_tags"] = {}
+for entry in report["site_packages"]:
+    wheel_file = os.path.join(site, entry, "WHEEL")
+    if entry.endswith(".dist-info") and os.path.isfile(wheel_file):
+        with open(wheel_file, encoding="utf-8") as f:
+            report["wheel_tags"][entry] = [ln.split(":", 1)[1].strip() for ln in f if ln.startswith("Tag:")]
 report["pdic_module"] = getattr(sys.modules.get("bl_ext.user_default.pdic"), "__file__", None)
 report["pdic_ops"] = sorted(dir(bpy.ops.pdic)) if hasattr(bpy.ops, "pdic") else []
 
@@ -179,6 +224,8 @@ def bake():
     image.pixels.foreach_get(pixels)
     rgba = pixels.reshape(-1, 4)
     covered = rgba[:, 3] > 0.5
+    report["module_files"] = {name: getattr(sys.modules.get(name), "__file__", None)
+                              for name in ("scipy", "embreex", "xatlas", "numpy")}
     report["image"] = {
         "size": list(image.size), "finite": bool(np.isfinite(rgba).all()),
         "covered_fraction": float(covered.mean()),
@@ -190,23 +237,33 @@ print("PDIC_REPORT " + json.dumps(report))
 '''
 
 
-@pytest.fixture(scope="module")
-def installed(built_zip, tmp_path_factory) -> dict:
-    """Install the built zip into a temporary user extension repository; the subprocess's report."""
-    work = tmp_path_factory.mktemp("install")
+@pytest.fixture(scope="module", params=BLENDERS, ids=lambda b: b.id)
+def installed(request, built_zip, tmp_path_factory) -> dict:
+    """Install the built zip into one Blender's temporary user extension repository; the subprocess's report."""
+    blender = request.param
+    python = blender_matrix.interpreter(blender)  # its own venv: bpy and numpy only
+    work = tmp_path_factory.mktemp(f"install-{blender.id}")
     script = work / "install_and_bake.py"
     script.write_text(textwrap.dedent(INSTALL_SCRIPT))
-    env = {k: v for k, v in os.environ.items() if not k.startswith("BLENDER_") and k != "PYTHONPATH"}
+    env = {k: v for k, v in os.environ.items()
+           if not k.startswith(("BLENDER_", "VIRTUAL_ENV")) and k not in ("PYTHONPATH", "PYTHONHOME")}
     env["BLENDER_USER_RESOURCES"] = str(work / "blender_user")
     # cwd and the script's folder are outside the repo: the extension must import from where Blender put it.
-    proc = subprocess.run([sys.executable, str(script), str(built_zip), str(work), str(SUN_STRENGTH)],
+    proc = subprocess.run([str(python), str(script), str(built_zip), str(work), str(SUN_STRENGTH)],
                           cwd=work, env=env, capture_output=True, text=True, timeout=900)
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("PDIC_REPORT ")]
-    assert proc.returncode == 0 and lines, f"install subprocess failed:\n{proc.stdout}\n{proc.stderr}"
+    assert proc.returncode == 0 and lines, f"install subprocess failed in {blender.id}:\n{proc.stdout}\n{proc.stderr}"
     report = json.loads(lines[-1][len("PDIC_REPORT "):])
+    report["blender"] = blender
     report["log"] = proc.stdout[-4000:] + proc.stderr[-4000:]
     shutil.rmtree(work / "blender_user" / "extensions" / ".cache", ignore_errors=True)
     return report
+
+
+def test_install_runs_in_the_blender_and_python_it_names(installed):
+    blender = installed["blender"]
+    assert installed["blender_version"] == blender.bpy
+    assert installed["python"] == blender.python
 
 
 def test_extension_installs_and_enables_through_blender(installed):
@@ -218,10 +275,33 @@ def test_extension_installs_and_enables_through_blender(installed):
 
 def test_bundled_wheels_are_unpacked_into_blenders_extension_site_packages(installed):
     assert "install" not in installed["errors"], installed["errors"].get("install")
-    for name, version in build_extension.pinned_versions().items():
+    requirements = build_extension.BLENDER_PYTHONS[installed["python"]]
+    for name, version in build_extension.pinned_versions(requirements=requirements).items():
         dist_info = f"{name}-{version}.dist-info"
         assert dist_info in installed["site_packages"], f"{dist_info} not unpacked: {installed['site_packages']}"
     assert not any(n.startswith("numpy") for n in installed["site_packages"]), "numpy must come from Blender"
+
+
+def test_each_blender_unpacks_only_the_wheels_of_its_own_python(installed):
+    """The zip holds cp311 and cp313 wheels; Blender (>= 4.2.13) unpacks only those of its Python."""
+    assert "install" not in installed["errors"], installed["errors"].get("install")
+    own = build_extension.python_tag(installed["python"])
+    tags = installed["wheel_tags"]
+    assert sorted(re.sub(r"-.*", "", d) for d in tags) == sorted(BUNDLED), tags
+    for dist_info, wheel_tags in tags.items():
+        assert wheel_tags and all(t.startswith(f"{own}-{own}-") for t in wheel_tags), (dist_info, wheel_tags)
+    other = {"cp311": "313", "cp313": "311"}[own]
+    compiled = [p.name for p in Path(installed["site_directory"]).rglob("*.so")]
+    assert compiled and not any(f"cpython-{other}-" in name for name in compiled), \
+        [n for n in compiled if f"cpython-{other}-" in n][:5]
+
+
+def test_bake_imports_bundled_packages_from_the_extension_and_numpy_from_blender(installed):
+    assert "bake" not in installed["errors"], installed["errors"].get("bake")
+    site = Path(installed["site_directory"])
+    for name in BUNDLED:
+        assert site in Path(installed["module_files"][name]).parents, (name, installed["module_files"][name])
+    assert site not in Path(installed["module_files"]["numpy"]).parents
 
 
 def test_installed_extension_registers_bake_operator(installed):

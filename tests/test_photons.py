@@ -120,3 +120,19 @@ def test_photon_map_is_read_only_even_after_a_round_trip_through_pickle():
             photons.p[0] = 0.0
         with pytest.raises(ValueError, match="read-only"):
             photons.prev[:] = -1
+
+
+def test_bounce_counter_holds_the_largest_allowed_max_bounces_and_settings_reject_more():
+    """Photons store their bounce in a uint8: 255 bounces fit, 256 would wrap to 0 ('direct')."""
+    from pdic.core.settings import BakeSettings
+
+    assert BakeSettings(max_bounces=255).max_bounces == 255
+    with pytest.raises(ValueError, match="max_bounces=256"):
+        BakeSettings(max_bounces=256)
+    # A white closed sphere: no photon escapes or dies, so each makes all 255 bounces.
+    scene = furnace(1.0, 1.0, subdivisions=1)
+    pm, _ = trace_photons(scene, RayCaster(scene.geometry.positions), 4, 255, seed=0)
+    assert pm.bounce.dtype == np.uint8
+    assert int(pm.bounce.max()) == 255
+    linked = pm.prev >= 0
+    assert np.all(pm.bounce[linked] == pm.bounce[pm.prev[linked]] + 1)

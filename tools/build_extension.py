@@ -1,10 +1,13 @@
 """Build the PDIC Blender extension (.zip per platform) with Blender's own builder.
 
 Steps:
-1. Download (once, then from a cache outside git) the cp311 wheels of the bundled
-   dependencies, scipy, embreex and xatlas, at the versions pinned in
-   requirements.txt, for each requested platform. numpy is not bundled: Blender
-   ships it.
+1. Download (once, then from a cache outside git) the wheels of the bundled
+   dependencies, scipy, embreex and xatlas, for each requested platform and for
+   each Python Blender ships: cp311 (Blender 4.2 to 5.0) at the versions pinned in
+   requirements.txt, cp313 (Blender 5.1 and 5.2) at those pinned in
+   requirements-py313.txt. Blender unpacks only the wheels of its own Python
+   (from 4.2.13 on; blender_manifest.toml's minimum). numpy is not bundled:
+   Blender ships it.
 2. Stage ``build/extension/`` with ``__init__.py``, ``core/``, ``pdic_addon/``,
    ``LICENSE`` (when present), ``wheels/`` and a copy of ``blender_manifest.toml``
    whose ``platforms`` and ``wheels`` list what was actually found.
@@ -37,8 +40,12 @@ ROOT = Path(__file__).resolve().parents[1]
 MANIFEST = ROOT / "blender_manifest.toml"
 REQUIREMENTS = ROOT / "requirements.txt"
 
-# The Python Blender 4.2 .. 5.0 bundle.
-BLENDER_PYTHON = "3.11"
+# The Pythons Blender bundles -> the requirements file pinning the wheels built for it:
+# 3.11 in Blender 4.2 .. 5.0, 3.13 in Blender 5.1 and 5.2.
+BLENDER_PYTHONS = {
+    "3.11": ROOT / "requirements.txt",
+    "3.13": ROOT / "requirements-py313.txt",
+}
 # Bundled into the extension; numpy is left out on purpose (Blender ships it).
 BUNDLED = ("scipy", "embreex", "xatlas")
 # Blender platform -> pip platform tags accepted for it, most compatible first
@@ -112,21 +119,27 @@ def pinned_versions(names=BUNDLED, requirements: Path = REQUIREMENTS) -> dict[st
     return {n: pins[n.lower()] for n in names}
 
 
-def _cached_wheel(directory: Path, name: str, version: str) -> Path | None:
+def python_tag(python: str) -> str:
+    """The wheel tag of CPython ``python``: ``"3.13"`` -> ``"cp313"``."""
+    return "cp" + python.replace(".", "")
+
+
+def _cached_wheel(directory: Path, name: str, version: str, python: str) -> Path | None:
     stem = re.sub(r"[-_.]+", "_", name).lower()
-    found = sorted(directory.glob(f"{stem}-{version}-*.whl")) if directory.is_dir() else []
+    pattern = f"{stem}-{version}-{python_tag(python)}-*.whl"
+    found = sorted(directory.glob(pattern)) if directory.is_dir() else []
     return found[0] if found else None
 
 
-def fetch_wheels(platform: str, versions: dict[str, str], cache: Path) -> tuple[list[Path], list[str]]:
-    """Wheels of ``versions`` for Blender ``platform`` (cached, else ``pip download``).
+def fetch_wheels(platform: str, versions: dict[str, str], cache: Path, python: str) -> tuple[list[Path], list[str]]:
+    """Wheels of ``versions`` for Blender ``platform`` and CPython ``python`` (cached, else ``pip download``).
 
-    Returns (wheels found, names with no cp311 wheel for this platform on the index).
+    Returns (wheels found, names with no wheel for this platform and Python on the index).
     """
     directory = cache / platform
     wheels, missing = [], []
     for name, version in versions.items():
-        wheel = _cached_wheel(directory, name, version)
+        wheel = _cached_wheel(directory, name, version, python)
         if wheel is None:
             # Download into a private folder, then move into the cache: a concurrent
             # build never sees a half-written wheel.
@@ -135,18 +148,18 @@ def fetch_wheels(platform: str, versions: dict[str, str], cache: Path) -> tuple[
                 cmd = [
                     sys.executable, "-m", "pip", "download", "--disable-pip-version-check", "-q",
                     "--only-binary=:all:", "--no-deps",
-                    "--python-version", BLENDER_PYTHON, "--implementation", "cp",
+                    "--python-version", python, "--implementation", "cp",
                     *[arg for tag in PLATFORM_TAGS[platform] for arg in ("--platform", tag)],
                     "-d", tmp, f"{name}=={version}",
                 ]
-                print(f"download: {name}=={version} for {platform}", flush=True)
+                print(f"download: {name}=={version} for {platform}, {python_tag(python)}", flush=True)
                 proc = subprocess.run(cmd, capture_output=True, text=True)
-                if (fetched := _cached_wheel(Path(tmp), name, version)) is not None:
+                if (fetched := _cached_wheel(Path(tmp), name, version, python)) is not None:
                     os.replace(fetched, directory / fetched.name)
-            wheel = _cached_wheel(directory, name, version)
+            wheel = _cached_wheel(directory, name, version, python)
             if proc.returncode != 0 or wheel is None:
                 tail = "\n".join((proc.stdout + proc.stderr).strip().splitlines()[-3:])
-                print(f"  no wheel: {name}=={version} for {platform}: {tail}", flush=True)
+                print(f"  no wheel: {name}=={version} for {platform}, {python_tag(python)}: {tail}", flush=True)
                 missing.append(name)
                 continue
         wheels.append(wheel)
@@ -188,14 +201,18 @@ def stage(staging: Path, wheels: list[Path], platforms: list[str]) -> Path:
 
 
 def build(platforms: list[str], dist: Path, cache: Path, staging: Path) -> list[Path]:
-    """Build one zip per platform that has every bundled wheel; returns their paths."""
-    versions = pinned_versions()
+    """Build one zip per platform that has every bundled wheel for every Blender Python; returns their paths."""
+    versions = {python: pinned_versions(requirements=path) for python, path in BLENDER_PYTHONS.items()}
     ready, wheels = [], []
     for platform in platforms:
         t0 = time.perf_counter()
-        found, missing = fetch_wheels(platform, versions, cache)
+        found, missing = [], []
+        for python, pins in versions.items():
+            have, lack = fetch_wheels(platform, pins, cache, python)
+            found += have
+            missing += [f"{name} ({python_tag(python)})" for name in lack]
         if missing:
-            print(f"skip {platform}: no cp{BLENDER_PYTHON.replace('.', '')} wheel for {', '.join(missing)}", flush=True)
+            print(f"skip {platform}: no wheel for {', '.join(missing)}", flush=True)
             continue
         print(f"wheels {platform}: {', '.join(w.name for w in found)} ({time.perf_counter() - t0:.1f} s)", flush=True)
         ready.append(platform)

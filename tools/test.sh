@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# Set up .venv (quick when already set up), then run pytest on the real bpy wheel.
+# Set up the venv (quick when already set up), then run pytest on the real bpy wheel.
 #
-#   bash tools/test.sh                              # the whole suite (tests/)
+#   bash tools/test.sh                              # the whole suite (tests/), bpy 5.0.1 / Python 3.11
+#   bash tools/test.sh --py313                      # the whole suite on bpy 5.2.3 / Python 3.13 / numpy 2
 #   bash tools/test.sh tests/test_packaging.py -x   # paths and pytest options pass through
 #   bash tools/test.sh -k manifest                  # options only: still runs tests/
 #   bash tools/test.sh -m "not slow"                # leave out the slow tests (marker in conftest.py)
@@ -9,7 +10,14 @@
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-bash "$ROOT/tools/setup.sh"
+PY=3.11
+VENV="$ROOT/.venv"
+if [[ "${1:-}" == "--py313" ]]; then
+    PY=3.13
+    VENV="$ROOT/.venv-py313"
+    shift
+fi
+bash "$ROOT/tools/setup.sh" --python "$PY"
 cd "$ROOT"
 
 # Add tests/ unless a path to test was given.
@@ -20,4 +28,4 @@ for arg in "$@"; do
         break
     fi
 done
-exec "$ROOT/.venv/bin/python" -m pytest "${targets[@]}" -q --durations=15 "$@"
+exec "$VENV/bin/python" -m pytest "${targets[@]}" -q --durations=15 "$@"
