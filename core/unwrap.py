@@ -40,6 +40,12 @@ ALGORITHM_VERSION = 2
 # Chart-option variants tried in turn when the xatlas child process crashes
 # (see core.xatlas_charts.chart_options).
 CHART_VARIANTS = 2
+CHILD_SECONDS_BASE = 60.0
+CHILD_SECONDS_PER_TRIANGLE = 5e-3
+"""A child with no answer after BASE + PER_TRIANGLE x triangles seconds is taken as hung and
+killed (then retried with other chart options): xatlas's thread pool was seen deadlocked once
+in thousands of small unwraps. Generous: a 65k-triangle grid took 288 s in the child on a
+2-core machine at load 17 (limit 385 s); 252k triangles get 22 minutes."""
 EXIT_GRACE_SECONDS = 10.0
 """How long the child may take to exit after writing its answer before it is killed."""
 # How often a waiting unwrap asks ``cancelled()`` (seconds).
@@ -293,10 +299,12 @@ def _layout_in_child(p, tri, resolution, padding, poly, max_resolution, cancelle
             request = dict(resolution=resolution, padding=padding, max_resolution=max_resolution, variant=variant,
                            sys_path=[s for s in sys.path if s])
             (folder / "request.json").write_text(json.dumps(request))
-            code = _run_child(folder, cancelled)
+            limit = CHILD_SECONDS_BASE + CHILD_SECONDS_PER_TRIANGLE * len(tri)
+            code = _run_child(folder, cancelled, limit)
             status = folder / "status.json"
             if not status.is_file():
-                crashes.append(_describe_exit(code, folder / "stderr.txt"))
+                crashes.append(f"no answer within {limit:.0f} s" if code is None
+                               else _describe_exit(code, folder / "stderr.txt"))
                 continue
             answer = json.loads(status.read_text())
             if answer.get("error") == "PackError":
@@ -316,9 +324,10 @@ def _layout_in_child(p, tri, resolution, padding, poly, max_resolution, cancelle
                         f"or give it a light-map UV map of your own")
 
 
-def _run_child(folder: Path, cancelled) -> int:
-    """Run the worker on ``folder``; returns its exit code. Kills it and raises
-    ``core.executor.Cancelled`` when ``cancelled()`` turns True."""
+def _run_child(folder: Path, cancelled, time_limit: float) -> int | None:
+    """Run the worker on ``folder``; returns its exit code, or None when it was killed for not
+    answering within ``time_limit`` seconds. Kills it and raises ``core.executor.Cancelled``
+    when ``cancelled()`` turns True."""
     from .executor import Cancelled
 
     worker = Path(__file__).resolve().parent / "unwrap_worker.py"
@@ -327,7 +336,7 @@ def _run_child(folder: Path, cancelled) -> int:
         child = subprocess.Popen([python_interpreter(), "-I", str(worker), str(folder)], stdin=subprocess.DEVNULL,
                                  stdout=subprocess.DEVNULL, stderr=err, env=env)
         try:
-            answered = None
+            answered, started = None, time.monotonic()
             while True:
                 try:
                     return child.wait(timeout=POLL_SECONDS)
@@ -340,6 +349,8 @@ def _run_child(folder: Path, cancelled) -> int:
                         answered = time.monotonic()
                     if answered is not None and time.monotonic() - answered > EXIT_GRACE_SECONDS:
                         return 0
+                    if answered is None and time.monotonic() - started > time_limit:
+                        return None  # killed below
         finally:
             if child.poll() is None:
                 child.kill()

@@ -127,7 +127,7 @@ def test_composite_keeps_covered_texels_bit_for_bit_and_fills_gutters():
 
 # --------------------------------------------------------------------------- acceptance scenes
 def test_cornell_packs_into_one_2048_atlas_without_overlap(blender, tmp_path):
-    from bench import scenes
+    import blend_scenes as scenes
 
     objects = scenes.load_cornell()
     layout = atlas.pack_atlases(object_inputs(objects, tmp_path), ATLAS, 2)
@@ -137,7 +137,7 @@ def test_cornell_packs_into_one_2048_atlas_without_overlap(blender, tmp_path):
 
 def test_cornell_as_one_object_packs_into_one_atlas(blender, tmp_path):
     import bpy
-    from bench import scenes
+    import blend_scenes as scenes
 
     objects = scenes.load_cornell()
     with bpy.context.temp_override(active_object=objects[0], selected_editable_objects=objects):
@@ -150,7 +150,7 @@ def test_cornell_as_one_object_packs_into_one_atlas(blender, tmp_path):
 @pytest.mark.parametrize("separate", [False, True])
 def test_sponza_packs_into_at_most_two_2048_atlases_without_overlap(separate, blender, tmp_path):
     import bpy
-    from bench import scenes
+    import blend_scenes as scenes
 
     assert SPONZA.is_file(), f"Sponza missing at {SPONZA}"
     objects = scenes.load_sponza()

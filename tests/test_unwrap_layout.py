@@ -161,10 +161,10 @@ def test_xatlas_crash_on_ico_sphere_is_survived_and_reported(blender):
 
 
 def test_cathedral_unwraps_without_overlap_and_its_pole_triangles_cover_nothing():
-    """bench/cathedral.py at low detail (17.6k triangles): the apse dome's pole has zero-area
+    """tests/cathedral.py at low detail (17.6k triangles): the apse dome's pole has zero-area
     triangles whose corners lie in different charts; they used to take one UV from each
     chart and cross the map (901 texel centres inside two triangles at 512^2)."""
-    from bench.cathedral import cathedral
+    from cathedral import cathedral
 
     mesh = cathedral(0.2)
     tri, polygon = mesh.triangles()
@@ -174,3 +174,15 @@ def test_cathedral_unwraps_without_overlap_and_its_pole_triangles_cover_nothing(
     assert degenerate.sum() > 0
     e1, e2 = r.uv[degenerate, 1] - r.uv[degenerate, 0], r.uv[degenerate, 2] - r.uv[degenerate, 0]
     assert np.all(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] == 0)
+
+
+def test_unwrap_child_that_gives_no_answer_in_time_is_killed_and_reported(monkeypatch):
+    """xatlas's thread pool was once seen deadlocked in the child: past its time limit the child
+    is killed, retried with the other chart options, and the error says it did not answer."""
+    monkeypatch.setattr(unwrap_module, "CHILD_SECONDS_BASE", 0.0)
+    monkeypatch.setattr(unwrap_module, "CHILD_SECONDS_PER_TRIANGLE", 0.0)
+    p = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    tries = []
+    with pytest.raises(UnwrapCrashed, match="no answer within 0 s"):
+        unwrap(p, np.array([[0, 1, 2], [0, 2, 3]]), 64, 2, progress=tries.append)
+    assert len(tries) == unwrap_module.CHART_VARIANTS

@@ -8,7 +8,7 @@ the wall planes. Everything is one mesh of quads and n-gons (column caps,
 rosette centres), as a user's imported model would be: 124k triangles at the
 default ``detail=0.8``, 18k at ``detail=0.2``. Units are metres, Z up.
 
-``python -m bench.cathedral [detail] [resolution]`` unwraps it and prints the
+``python tests/cathedral.py [detail] [resolution]`` unwraps it and prints the
 overlap count of the light-map layout (must be 0).
 """
 from __future__ import annotations
