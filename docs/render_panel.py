@@ -3,8 +3,8 @@
 Blender cannot draw its UI in background mode (no GPU context; a popup
 crashes the bpy wheel), so a real screenshot cannot be taken here. This
 script runs the panels' own draw functions against the recording layout of
-tests/test_ui.py (which checks every property, operator and icon against
-Blender's RNA), then lays the recorded rows out in Blender's dark-theme
+tools/ui_recorder.py (which checks every property, operator and icon against
+Blender's RNA; the UI tests use it too), then lays the recorded rows out in Blender's dark-theme
 colours: numpy for the boxes, Blender's own font renderer (``blf``
 drawing into an ``imbuf``) for the text. Icons are left out; sizes follow
 Blender's 20 px widget unit.
@@ -21,7 +21,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+sys.path.insert(0, str(ROOT))
 import pdic_bootstrap  # noqa: E402
 
 pdic_bootstrap.load()
@@ -33,7 +33,7 @@ import numpy as np  # noqa: E402
 
 from pdic import pdic_addon  # noqa: E402
 from pdic.pdic_addon import panels  # noqa: E402
-from test_ui import RecordingLayout, _enable_preferences  # noqa: E402
+from tools.ui_recorder import RecordingLayout, _enable_preferences  # noqa: E402
 
 # Blender's default dark theme (approximately), linear 0..1 sRGB values written as-is to a PNG.
 BACKGROUND = (0.188, 0.188, 0.188)
