@@ -32,7 +32,7 @@ pdic_bootstrap.load()
 import bpy  # noqa: E402
 
 import cycles_reference as cr  # noqa: E402
-from test_cathedral_direct_vs_cycles import DARK, WITHIN, build_cathedral_scene, direct_comparison  # noqa: E402
+from test_cathedral_direct_vs_cycles import DARK, LIGHTS, WITHIN, build_cathedral_scene, direct_comparison  # noqa: E402
 from test_direct_vs_cycles import bake_pdic  # noqa: E402
 
 from pdic import pdic_addon  # noqa: E402
@@ -187,11 +187,16 @@ def main(argv=None):
         border = ~np.stack([pad[rows + dy, cols + dx] for dy in range(3) for dx in range(3)]).all(axis=0)
         lit = np.pad(lc > DARK, 1)
         near_lit = np.stack([lit[rows + dy, cols + dx] for dy in range(3) for dx in range(3)]).any(axis=0)
+        to_lights = np.array(LIGHTS)[None, :, :3] - pos[:, None, :]
+        facing_away = (np.einsum("tlk,tk->tl", to_lights, nrm) <= 0).all(axis=1)
         print(f"{label}: {len(rows)} texels; on chart borders {border.mean():.0%}; a Cycles-lit texel within 1 "
-              f"texel {near_lit.mean():.0%}; centre in > 1 triangle "
+              f"texel {near_lit.mean():.0%}; centre's facet faces away from both lights {facing_away.mean():.0%}; "
+              f"centre in > 1 triangle "
               f"{(inside > 1).sum()}; parts {dict(sorted(parts.items(), key=lambda kv: -kv[1]))}")
         for i in np.linspace(0, len(rows) - 1, min(args.examples, len(rows))).astype(int):
-            print(f"   texel ({rows[i]}, {cols[i]}) at {np.round(pos[i], 3)} n {np.round(nrm[i], 2)} polygon "
+            to_light = np.array(LIGHTS)[:, :3] - pos[i]
+            cos = to_light @ nrm[i] / np.linalg.norm(to_light, axis=1)
+            print(f"   texel ({rows[i]}, {cols[i]}) at {np.round(pos[i], 3)} n {np.round(nrm[i], 2)} n.l {np.round(cos, 2)} polygon "
                   f"{face[i]}: PDIC {np.round(P[rows[i], cols[i]], 4)} Cycles {np.round(C[rows[i], cols[i]], 4)}")
     pdic_addon.unregister()
 

@@ -10,8 +10,10 @@ Direct (no Color) into the same ``PDIC_Lightmap`` UVs (tests/test_direct_vs_cycl
 "Away from shadow edges" is the ``flat`` mask: baked texels whose 3x3
 neighbourhood is baked and whose Cycles luminance varies there by < 10 % of the
 centre's (or is 0 throughout). Near edges PDIC's 2x2 sub-sample average and
-Cycles' texel-centre sample legitimately differ (contact lines under walls and
-column bases, the hidden caps inside the column shafts whose 1 cm rim is lit).
+Cycles' texel-centre sample legitimately differ: shadow and contact lines (floor
+under walls and column bases, mouldings), and chart-border texels of column
+shafts whose centre lies on a facet turned away from the lights while half the
+texel covers the next facet, lit, which has no texel centre of its own.
 
 Measured (bench/cathedral_direct.py, detail 0.3, 512^2, Cycles 16 spp): 94,082
 baked texels, 45,976 flat; within 2 % on 99.56 % of the flat texels (Cycles'
