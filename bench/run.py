@@ -329,7 +329,9 @@ def section_tables(quick: bool, errors_ref=None) -> dict:
                        refine_rays=c.get("refine_rays_cast", 0) + c.get("refine_shadow_rays", 0),
                        refine_gather_rays=c.get("refine_rays_cast", 0),
                        refine_virtual_rays=c.get("refine_virtual_rays", 0), refine_cells=c.get("refine_cells", 0),
-                       photon_bytes=c.get("photon_bytes", 0), **(err or {}))
+                       photon_bytes=c.get("photon_bytes", 0),
+                       embree_share={k[len("embree_share_"):]: round(v, 3) for k, v in c.items()
+                                     if k.startswith("embree_share_")}, **(err or {}))
             log("tables", {k: v for k, v in row.items() if k != "stage_seconds"})
             (table1 if reuse else table2).append(row)
         fig5.append(figure5(name, scene, photons, bounces, extra, ref if name == "Cornell" else None, pair))

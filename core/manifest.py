@@ -40,7 +40,11 @@ Schema (``schema_version`` 1)
     :meth:`core.stats.BakeStats.as_dict` plus the add-on's own stages:
     ``seconds`` (dict stage -> wall seconds, float), ``seconds_total`` (float, s),
     ``counters`` (dict name -> int or float: photons, records, rays cast/saved,
-    texels, ...). Keys sorted.
+    texels, ...). Keys sorted. For every stage that cast rays, ``embree_seconds_<stage>``
+    (float, s: wall time inside Embree's traversal calls, summed over threads) and
+    ``embree_share_<stage>`` (float in (0, 1]: that time over the stage's thread time,
+    ``threads`` x its wall seconds; e.g. ``embree_share_refine`` for pass 3; a low share means
+    the stage is bound by Python/numpy, not by rays).
 ``warnings`` : list of str
     Everything the bake reported but did not stop for (skipped objects, clamped
     values, degenerate triangles).

@@ -85,7 +85,8 @@ def bake(scene: Scene, settings: BakeSettings, progress: Progress | None = None,
     executor = executor or Executor(settings.threads or default_workers())
     if not settings.deviations.transparent_shadows:  # deviation: transparent-shadows, docs/DEVIATIONS.md
         scene = replace(scene, geometry=replace(scene.geometry, transmission=None))  # every triangle opaque
-    run = _Run(scene, settings, progress, executor, BakeStats(), cache if cache is not None else NoBakeCache())
+    run = _Run(scene, settings, progress, executor, BakeStats(workers=executor.workers),
+               cache if cache is not None else NoBakeCache())
     try:
         return _bake(run)
     finally:
@@ -135,6 +136,7 @@ class _Run:
             with self.stats.stage("bvh"):
                 g = self.scene.geometry
                 self._caster = RayCaster(g.positions, self.scene.extent, self.executor, g.transmission)
+            self.stats.clock = self._caster.clock
         return self._caster
 
 

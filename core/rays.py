@@ -14,6 +14,8 @@ on one thread, 11.5 M/s on two, for a 20k-triangle height field).
 from __future__ import annotations
 
 import copy
+import threading
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,6 +32,32 @@ RELATIVE_EPSILON = 1e-5
 # Below this many rays a batch is traced on the calling thread: the pool's
 # hand-off costs more than it saves.
 MIN_PARALLEL_BATCH = 65_536
+
+
+class EmbreeClock:
+    """Wall seconds spent inside Embree's traversal calls, summed over the threads that made them.
+
+    One clock is shared by a :class:`RayCaster` and its :meth:`RayCaster.serial` views, so a
+    stage reads how much of its time went into casting rays (``BakeStats`` turns the difference
+    over a stage into ``embree_seconds_<stage>``). Thread-safe; pickles as its reading.
+    """
+
+    def __init__(self):
+        self.seconds = 0.0
+        self.calls = 0
+        self._lock = threading.Lock()
+
+    def add(self, seconds: float) -> None:
+        with self._lock:
+            self.seconds += seconds
+            self.calls += 1
+
+    def __getstate__(self):
+        return {"seconds": self.seconds, "calls": self.calls}
+
+    def __setstate__(self, state):
+        self.__init__()
+        self.seconds, self.calls = state["seconds"], state["calls"]
 
 
 @dataclass(frozen=True)
@@ -82,6 +110,8 @@ class RayCaster:
             # Embree rejects no triangle for being degenerate, it just never reports hits on it.
             mesh_construction.TriangleMesh(self._scene, positions.astype(np.float32))
         self.rays_cast = 0  # closest-hit and occlusion rays traced so far (statistics)
+        self.clock = EmbreeClock()
+        """Time inside Embree calls, shared with :meth:`serial` views (statistics)."""
         tau = None if transmission is None else np.asarray(transmission, np.float64)
         self.transmission = tau if tau is not None and tau.any() else None
         """(T,) float64 pass-through probabilities, or None when every triangle is opaque."""
@@ -108,6 +138,14 @@ class RayCaster:
         side = np.sign(np.einsum("ij,ij->i", normals, directions))
         side[side == 0] = 1.0
         return origins + (self.epsilon * side)[:, None] * normals
+
+    def _embree(self, o: np.ndarray, d: np.ndarray, **kwargs):
+        """One embreex ``run`` call (float32 rays), its wall time added to :attr:`clock`."""
+        start = time.perf_counter()
+        try:
+            return self._scene.run(o, d, **kwargs)
+        finally:
+            self.clock.add(time.perf_counter() - start)
 
     def _chunks(self, n: int):
         if n < MIN_PARALLEL_BATCH or self.executor.workers <= 1:
@@ -138,7 +176,7 @@ class RayCaster:
 
         def run(s: slice):
             kwargs = {} if limit is None else {"dists": limit[s]}
-            r = self._scene.run(o[s], d[s], output=1, **kwargs)
+            r = self._embree(o[s], d[s], output=1, **kwargs)
             prim = r["primID"].astype(np.int64)
             ok = prim >= 0
             tri[s] = prim
@@ -178,7 +216,7 @@ class RayCaster:
 
         def run(s: slice):
             kwargs = {} if limit is None else {"dists": limit[s]}
-            blocked[s] = self._scene.run(o[s], d[s], query="OCCLUDED", **kwargs) >= 0
+            blocked[s] = self._embree(o[s], d[s], query="OCCLUDED", **kwargs) >= 0
 
         list(self.executor.map(run, self._chunks(n)))
         self.rays_cast += n
@@ -220,7 +258,7 @@ class RayCaster:
         t = np.full(len(o), np.inf)
 
         def run(s: slice):
-            r = self._scene.run(o[s], d[s], output=1, dists=limit[s])
+            r = self._embree(o[s], d[s], output=1, dists=limit[s])
             prim[s] = r["primID"]
             t[s] = r["tfar"]
 

@@ -16,14 +16,27 @@ class BakeStats:
     """Wall seconds per named stage, in the order they ran."""
     counters: dict = field(default_factory=dict)
     """Work counters (photons, records, rays cast and saved, texels, ...), integers or floats."""
+    workers: int = 1
+    """Threads the stages run on: a stage's thread time is ``workers`` x its wall seconds."""
+    clock: object = None
+    """The ray caster's :class:`~core.rays.EmbreeClock` once a BVH exists (None before)."""
+    embree_seconds: dict = field(default_factory=dict)
+    """Seconds inside Embree per stage, summed over threads (read from :attr:`clock`)."""
 
     @contextmanager
     def stage(self, name: str):
         start = time.perf_counter()
+        embree_start = self._embree_reading()
         try:
             yield
         finally:
             self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - start
+            if self.clock is not None:
+                spent = self._embree_reading() - embree_start
+                self.embree_seconds[name] = self.embree_seconds.get(name, 0.0) + spent
+
+    def _embree_reading(self) -> float:
+        return self.clock.seconds if self.clock is not None else 0.0
 
     def add(self, **counters):
         for key, value in counters.items():
@@ -32,10 +45,26 @@ class BakeStats:
     def set(self, **counters):
         self.counters.update(counters)
 
+    def embree_counters(self) -> dict:
+        """``embree_seconds_<stage>`` and ``embree_share_<stage>`` (in [0, 1]) for every stage that cast rays.
+
+        The share is Embree's part of the stage's thread time: summed seconds inside Embree over
+        ``workers`` x wall seconds (threads idle or running other stages count as not-Embree).
+        """
+        out = {}
+        for name, spent in self.embree_seconds.items():
+            wall = self.seconds.get(name, 0.0)
+            if spent <= 0.0 or wall <= 0.0:
+                continue
+            out[f"embree_seconds_{name}"] = round(spent, 4)
+            out[f"embree_share_{name}"] = min(spent / (wall * max(self.workers, 1)), 1.0)
+        return out
+
     def as_dict(self) -> dict:
         total = sum(self.seconds.values())
+        counters = {**self.counters, **self.embree_counters()}
         return {
             "seconds": {k: round(v, 4) for k, v in self.seconds.items()},
             "seconds_total": round(total, 4),
-            "counters": {k: (int(v) if float(v).is_integer() else float(v)) for k, v in self.counters.items()},
+            "counters": {k: (int(v) if float(v).is_integer() else float(v)) for k, v in counters.items()},
         }
