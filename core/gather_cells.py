@@ -57,6 +57,23 @@ class CellSums:
         self.count += np.bincount(cell, weights=w, minlength=size)
         np.minimum.at(self.r_min, cell, dist)
 
+    def add_real_rays(self, cell: np.ndarray, w_local: np.ndarray, dist: np.ndarray):
+        """Add one real ray to each of the given distinct, still empty cells: its rotational-gradient
+        axis, count 1 and hit distance (inf on a miss). Its radiance follows with :meth:`add_real_radiance`.
+
+        The same sums :meth:`add_rays` makes with unit weights, written in place: the cells are distinct,
+        so no bincount over all B C cells is needed.
+        """
+        cos = np.maximum(w_local[:, 2], 1e-6)
+        self.rot_sum[cell, 0] += -w_local[:, 1] / cos
+        self.rot_sum[cell, 1] += w_local[:, 0] / cos
+        self.count[cell] += 1.0
+        self.r_min[cell] = np.minimum(self.r_min[cell], dist)
+
+    def add_real_radiance(self, cell: np.ndarray, L: np.ndarray):
+        """Add (h, 3) radiance to the distinct cells of real rays already counted by :meth:`add_real_rays`."""
+        self.L_sum[cell] += L
+
     def add_distances(self, inv_sum: np.ndarray, inv_n: np.ndarray):
         """Per-record sums (B,) of 1 / hit distance and hit counts."""
         self.inv_d_sum += inv_sum

@@ -12,6 +12,8 @@ the gathering ray that found the hit.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from .albedo import albedo as albedo_at
@@ -20,13 +22,34 @@ from .gather_cells import CellSums
 from .photon_fallback import nearest_photon_irradiance
 
 
-def cast_real(scene, caster, sources, frames, cells: np.ndarray, sums: CellSums, rng: np.random.Generator
-              ) -> tuple[int, np.ndarray, np.ndarray]:
-    """Cast one real ray through each given cell (flat record * C + cell) and add it to ``sums``.
+@dataclass(frozen=True)
+class RealHits:
+    """Where a batch's real rays ended, waiting to be shaded (struct of arrays, h hits).
 
-    frames : (p_k, t1, t2, n) of the batch's records, each (B, 3).
-    Returns the shadow rays (and fallback visibility rays) spent shading the hits, and the
-    per-record (B,) sums of 1 / hit distance and hit counts these rays added.
+    cell : (h,) int64 flat cells (record * C + cell) of the rays that hit something.
+    triangle : (h,) int64; barycentric : (h, 2) float64; q : (h, 3) float64 hit points;
+    direction : (h, 3) float64 unit ray directions.
+    """
+
+    cell: np.ndarray
+    triangle: np.ndarray
+    barycentric: np.ndarray
+    q: np.ndarray
+    direction: np.ndarray
+
+    @staticmethod
+    def concatenate(parts: list["RealHits"]) -> "RealHits":
+        return RealHits(*(np.concatenate([getattr(part, f) for part in parts]) for f in
+                          ("cell", "triangle", "barycentric", "q", "direction")))
+
+
+def trace_real(caster, frames, cells: np.ndarray, sums: CellSums, rng: np.random.Generator
+               ) -> tuple[RealHits, np.ndarray, np.ndarray]:
+    """Cast one real ray through each given cell (flat record * C + cell, each at most once) into ``sums``.
+
+    frames : (p_k, t1, t2, n) of the batch's records, each (B, 3). The rays' directions and
+    distances enter ``sums`` now; their radiance once :func:`shade_real` has shaded the hits.
+    Returns the hits and the per-record (B,) sums of 1 / hit distance and hit counts these rays added.
     """
     p_k, t1, t2, n = frames
     H = sums.H
@@ -37,18 +60,25 @@ def cast_real(scene, caster, sources, frames, cells: np.ndarray, sums: CellSums,
     # Push the origins off the record's surface once; hit points are that origin plus t.
     origin = caster.offset_origins(p_k[rec], n[rec], d_world)
     hits = caster.intersect(origin, d_world)
-    L = np.zeros((len(cells), 3))
-    hit = hits.hit
-    shadow_rays = 0
-    if hit.any():
-        L[hit], shadow_rays = radiance_at_hits(scene, caster, sources, hits.triangle[hit], hits.barycentric[hit],
-                                               origin[hit] + d_world[hit] * hits.t[hit, None], d_world[hit], rng)
-    sums.add_rays(cells, L, w_local, hits.t)
-    finite = np.isfinite(hits.t)
-    inv_sum = np.bincount(rec[finite], weights=1.0 / np.maximum(hits.t[finite], 1e-300), minlength=sums.B)
-    inv_n = np.bincount(rec[finite], minlength=sums.B).astype(np.float64)
+    sums.add_real_rays(cells, w_local, hits.t)
+    hit = np.flatnonzero(hits.hit)
+    found = RealHits(cells[hit], hits.triangle[hit], hits.barycentric[hit],
+                     origin[hit] + d_world[hit] * hits.t[hit, None], d_world[hit])
+    inv_sum = np.bincount(rec[hit], weights=1.0 / np.maximum(hits.t[hit], 1e-300), minlength=sums.B)
+    inv_n = np.bincount(rec[hit], minlength=sums.B).astype(np.float64)
     sums.add_distances(inv_sum, inv_n)
-    return shadow_rays, inv_sum, inv_n
+    return found, inv_sum, inv_n
+
+
+def shade_real(scene, caster, sources, hits: RealHits, sums: CellSums, rng: np.random.Generator) -> int:
+    """Add the radiance at real rays' hits to their cells (one call for all of a batch's rays: the
+    cache lookup at hits costs per call as well as per hit). Returns the shadow and fallback rays spent."""
+    if len(hits.cell) == 0:
+        return 0
+    L, shadow_rays = radiance_at_hits(scene, caster, sources, hits.triangle, hits.barycentric, hits.q,
+                                      hits.direction, rng)
+    sums.add_real_radiance(hits.cell, L)
+    return shadow_rays
 
 
 def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: np.ndarray, q: np.ndarray,

@@ -5,7 +5,8 @@ A batch of records is refined in four named steps, cut along Figure 4:
 
 1. :func:`probe` - a few real rays per record (deviation: probe-rays);
 2. :func:`~core.virtual_rays.fill_virtual` - virtual rays from the zones' photon paths (4a-b);
-3. :func:`~core.real_rays.cast_real` - one real ray per cell no ray reached (4c);
+3. :func:`~core.real_rays.trace_real` - one real ray per cell no ray reached (4c), then
+   :func:`~core.real_rays.shade_real` - radiance at all the batch's real hits at once;
 4. :meth:`~core.gather_cells.CellSums.irradiance_and_gradients` - the refined E_k, its rotational
    and translational gradients and a new R_k (harmonic mean of the distances, clamped again).
 
@@ -29,7 +30,7 @@ from .hemisphere import Hemisphere, local_frames
 from .interpolation import CacheLookup
 from .irradiance_cache import CacheParameters, IrradianceCache, Zones, neighbour_clamp
 from .photons import PhotonLighting
-from .real_rays import cast_real
+from .real_rays import RealHits, shade_real, trace_real
 from .record_walls import open_walls, wall_distances
 from .settings import BakeSettings, Deviations
 from .virtual_rays import fill_virtual
@@ -131,15 +132,18 @@ def refine_batch(scene, caster, sources: GatherSources, p_k: np.ndarray, n_k: np
     t1, t2, n = local_frames(n_k)
     frames = (p_k, t1, t2, n)
     sums = CellSums(B, H)
-    probe_rays = probe_shadow = visibility_rays = virtual = cells_virtual = 0
+    probe_rays = visibility_rays = virtual = cells_virtual = 0
     zone_radius = np.full(B, np.inf)
+    hits = []
     if reuse and sources.deviations.probe_rays:
-        zone_radius, probe_rays, probe_shadow = probe(scene, caster, sources, frames, sums, rng)
+        zone_radius, probe_rays, probe_hits = probe(caster, frames, sums, rng)
+        hits.append(probe_hits)
     if reuse:
         virtual, cells_virtual, visibility_rays = fill_virtual(caster, sources, frames, zone_lengths, zone_photons,
                                                                zone_radius, sums, rng)
     empty = sums.empty_cells()  # Figure 4c: real rays for the cells no ray reached
-    shadow_rays = cast_real(scene, caster, sources, frames, empty, sums, rng)[0] + probe_shadow
+    hits.append(trace_real(caster, frames, empty, sums, rng)[0])
+    shadow_rays = shade_real(scene, caster, sources, RealHits.concatenate(hits), sums, rng)
     E, grad_r, grad_t, R = sums.irradiance_and_gradients(t1, t2, n, r_floor)
     return {
         "E": E, "grad_r": grad_r, "grad_t": grad_t, "R": R,
@@ -153,18 +157,18 @@ def refine_batch(scene, caster, sources: GatherSources, p_k: np.ndarray, n_k: np
     }
 
 
-def probe(scene, caster, sources: GatherSources, frames, sums: CellSums, rng: np.random.Generator
-          ) -> tuple[np.ndarray, int, int]:
+def probe(caster, frames, sums: CellSums, rng: np.random.Generator) -> tuple[np.ndarray, int, RealHits]:
     """PROBE_RAYS real rays per record, stratified over the hemisphere; they fill their cells.
 
     deviation: probe-rays, docs/DEVIATIONS.md. Their harmonic-mean distance R_probe bounds the
     photons that may lend virtual rays (within VIRTUAL_RADIUS R_probe): beside a wall the
     record's view differs from its neighbours' a few centimetres away, and Figure 3's R_k (from
-    photon last hits) tends to miss that wall. Returns (zone radius (B,), rays, shadow rays).
+    photon last hits) tends to miss that wall. Returns (zone radius (B,), rays, their hits, shaded
+    later with the batch's other real rays).
     """
     B, C = sums.B, sums.H.cells
     probe_cells = np.unique(np.linspace(0, C - 1, PROBE_RAYS).astype(np.int64))
     cells = (np.arange(B)[:, None] * C + probe_cells[None, :]).ravel()
-    shadow, inv_sum, inv_n = cast_real(scene, caster, sources, frames, cells, sums, rng)
+    hits, inv_sum, inv_n = trace_real(caster, frames, cells, sums, rng)
     R_probe = np.divide(inv_n, inv_sum, out=np.full(B, np.inf), where=inv_sum > 0)
-    return VIRTUAL_RADIUS * R_probe, len(cells), shadow
+    return VIRTUAL_RADIUS * R_probe, len(cells), hits
