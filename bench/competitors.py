@@ -387,6 +387,10 @@ def section(quick: bool, names: str = "", results: Path | None = None) -> dict:
 
     results = Path(results or RESULTS)
     keys = [k.strip() for k in (names or ",".join(DEFAULT_SCENES)).split(",") if k.strip()]
+    try:
+        import pyoidn  # noqa: F401  (fail before an hour of bakes, not after)
+    except ImportError as e:
+        raise SystemExit(f"the competitors section needs pyoidn: pip install -r requirements-bench.txt ({e})")
     unknown = [k for k in keys if k not in SCENES]
     if unknown:
         raise SystemExit(f"--competitors: unknown scene(s) {unknown}; known: {sorted(SCENES)}")
