@@ -123,7 +123,8 @@ def errors(test: np.ndarray, pair: tuple, mask: np.ndarray) -> dict:
     """Noise-corrected relative RMSE of ``test`` (H, W, 3) against a seed pair, per texel and per block.
 
     pair : two (H, W, 3) float32 bakes with other seeds than ``test``; mask : (H, W) bool texels compared.
-    Returns {"texel": float, "block": float} (fractions, 0.02 = 2 %).
+    Returns {"texel": float, "block": float} (fractions, 0.02 = 2 %) and "mean_ratio", the
+    mean of ``test`` over the pair's (a bias no block size forgives: 0.9 = 10 % too dark).
     """
     from pdic.bench.run import noise_corrected_error
 
@@ -134,6 +135,7 @@ def errors(test: np.ndarray, pair: tuple, mask: np.ndarray) -> dict:
     out = {"texel": corrected(test, pair[0], pair[1], mask)}
     (x, blocks), (a, _), (b, _) = (block_means(v, mask) for v in (test, pair[0], pair[1]))
     out["block"] = corrected(x, a, b, blocks)
+    out["mean_ratio"] = float(test[mask].mean() / max(0.5 * (pair[0][mask].mean() + pair[1][mask].mean()), 1e-30))
     return out
 
 
@@ -253,7 +255,7 @@ def cycles_ladder(obj, size, spec: SceneSpec, refs: dict, mask, normal, keep_spp
                 err = errors(image, refs[kind], mask)
                 rows.append(dict(method=method, kind=kind, spp=spp, wall=bake["wall"] + wall,
                                  cpu=bake["cpu"] + cpu, denoise_wall=wall, denoise_cpu=cpu,
-                                 error_texel=err["texel"], error_block=err["block"]))
+                                 error_texel=err["texel"], error_block=err["block"], mean_ratio=err["mean_ratio"]))
                 log("competitors", spec.label, {k: v for k, v in rows[-1].items()})
                 if spp == keep_spp:
                     kept[(kind, method)] = image
@@ -275,7 +277,7 @@ def pdic_runs(scene, name: str, refs: dict, mask) -> tuple:
         for kind, image in images.items():
             err = errors(image, refs[kind], mask & result.centre_inside[name])
             rows.append(dict(method=method, kind=kind, wall=wall, cpu=cpu, error_texel=err["texel"],
-                             error_block=err["block"], records=counters.get("records_total"),
+                             error_block=err["block"], mean_ratio=err["mean_ratio"], records=counters.get("records_total"),
                              stage_seconds=result.stats.get("seconds", {})))
             log("competitors", method, {k: v for k, v in rows[-1].items() if k != "stage_seconds"})
             if quality == "FINAL":
@@ -445,9 +447,11 @@ def markdown(c: dict) -> str:
         for method, spp in dict.fromkeys((r["method"], r.get("spp")) for r in s["pdic"] + s["cycles"]):
             a, i = by.get((method, spp, "all")), by.get((method, spp, "indirect"))
             rows.append([method, "-" if spp is None else spp, _s(a["cpu"]), _s(a["wall"]), _pct(a["error_texel"]),
-                         _pct(a["error_block"]), _s(i["cpu"]), _pct(i["error_texel"]), _pct(i["error_block"])])
+                         _pct(a["error_block"]), _s(i["cpu"]), _pct(i["error_texel"]), _pct(i["error_block"]),
+                         _ratio(a), _ratio(i)])
         out.append(_md_table(["method", "spp", "CPU s", "wall s", "all: texel %", f"all: {c['block']}x{c['block']} %",
-                              "indirect bake CPU s", "indirect: texel %", f"indirect: {c['block']}x{c['block']} %"],
+                              "indirect bake CPU s", "indirect: texel %", f"indirect: {c['block']}x{c['block']} %",
+                              "mean / reference: all", "indirect"],
                              rows))
         out.append("\nCycles' CPU seconds at PDIC's error (log-log interpolated on the ladder; 'at most' = PDIC's "
                    "error is above the cheapest rung's; 'extrapolated' = below the ladder, by its last two rungs; "
@@ -463,6 +467,10 @@ def markdown(c: dict) -> str:
             rows.append([e["pdic"], e["kind"], e["metric"], _pct(e["error"]), _s(e["pdic_cpu"])] + cells)
         out.append(_md_table(["PDIC", "kind", "metric", "error %", "PDIC CPU s"] + methods, rows))
     return "".join(out)
+
+
+def _ratio(row: dict) -> str:
+    return "-" if row.get("mean_ratio") is None else f"{row['mean_ratio']:.3f}"
 
 
 def _md_table(header: list, rows: list) -> str:

@@ -78,3 +78,9 @@ def test_crop_window_centres_on_the_nearest_covered_texel_and_stays_inside():
     assert competitors.crop_window(position, mask, (50.0, 50.0, 0.0), side=20) in {(39, 40), (40, 39), (41, 40),
                                                                                   (40, 41)}
     assert competitors.crop_window(position, mask, (99.0, 79.0, 0.0), side=20) == (80, 60)
+
+
+def test_mean_ratio_reports_a_uniform_darkening():
+    truth = _field(32, 32)
+    mask = np.ones((32, 32), bool)
+    assert competitors.errors(0.8 * truth, (truth, truth), mask)["mean_ratio"] == pytest.approx(0.8, rel=1e-5)
