@@ -263,7 +263,7 @@ def cycles_ladder(obj, size, spec: SceneSpec, refs: dict, mask, normal, keep_spp
 
 
 # --------------------------------------------------------------------------- PDIC
-def pdic_runs(scene, name: str, refs: dict, mask) -> tuple:
+def pdic_runs(scene, name: str, refs: dict, mask, save_to: Path | None = None) -> tuple:
     """PDIC Final and Preview at defaults: (rows, {(kind, method): image} of Final)."""
     from pdic.core.pipeline import bake
     from pdic.core.settings import preset
@@ -282,6 +282,8 @@ def pdic_runs(scene, name: str, refs: dict, mask) -> tuple:
             log("competitors", method, {k: v for k, v in rows[-1].items() if k != "stage_seconds"})
             if quality == "FINAL":
                 kept[(kind, method)] = image
+    if save_to is not None:  # PDIC Final's maps, for looking into its error after the run
+        np.savez_compressed(save_to, **{f"{kind}": img for (kind, _), img in kept.items()})
     return rows, kept
 
 
@@ -355,7 +357,7 @@ def run_scene(key: str, spec: SceneSpec, results: Path) -> dict:
     log("competitors", spec.label, f"{size[0]}x{size[1]}, {int(mask.sum()):,} texels, "
         f"{scene.geometry.count:,} triangles")
     refs = {kind: reference_pair(obj, size, passes, spec.reference_spp, work) for kind, passes in PASS_SETS.items()}
-    pdic, pdic_images = pdic_runs(scene, target.name, refs, mask)
+    pdic, pdic_images = pdic_runs(scene, target.name, refs, mask, work / "pdic_final.npz")
     keep = spec.ladder[min(2, len(spec.ladder) - 1)]
     cycles, cycles_images = cycles_ladder(obj, size, spec, refs, mask, normal, keep)
     window = crop_window(position, mask, spec.crop_world)
