@@ -141,6 +141,10 @@ def markdown(results: dict) -> str:
             [f"{r['changed_object']} at 2x resolution", _f(r["one_resolution_seconds"]),
              f"{100 * r['one_resolution_ratio']:.1f} %",
              ", ".join(f"{k} {v}" for k, v in r["one_resolution_counters"].items())]]))
+    if results.get("competitors"):
+        from . import competitors
+
+        out.append(competitors.markdown(results["competitors"]))
     return "".join(out)
 
 
@@ -207,6 +211,10 @@ def plots(results: dict, out: Path, images: dict) -> list:
         fig.savefig(out / "figure5.png")
         plt.close(fig)
         written.append("figure5.png")
+    if results.get("competitors"):
+        from . import competitors
+
+        written += competitors.plots(results["competitors"], out, plt)
     return written
 
 

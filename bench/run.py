@@ -19,6 +19,8 @@ figure5  [Chr99] (irradiance at photons, nearest-photon lookup) vs the pass-2 pr
 scaling  photons 50k..4M and texels 64^2..2048^2, time and peak memory (one subprocess per
          point, VmHWM), and a linear cost model per pass.
 rebake   an unchanged re-bake and a one-object resolution change with a BakeCache: time ratio.
+competitors  Cycles at a ladder of samples, raw and denoised by OIDN, against PDIC at equal error
+         (bench/competitors.py; --competitors names the scenes, e.g. cornell256,sponza2048).
 """
 from __future__ import annotations
 
@@ -529,6 +531,8 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="CI-sized run (minutes)")
     ap.add_argument("--only", default="errors,tables,scaling,rebake",
                     help="comma-separated sections: errors, tables (incl. figure 5), scaling, rebake")
+    ap.add_argument("--competitors", default="",
+                    help="scenes of the competitors section (bench/competitors.py SCENES; default: the non-optional)")
     ap.add_argument("--out", default=str(RESULTS))
     ap.add_argument("--publish", action="store_true", help="copy results.md and plots to bench/RESULTS.md, bench/plots/")
     ap.add_argument("--point", help=argparse.SUPPRESS)
@@ -554,7 +558,7 @@ def main(argv=None):
     for name in sections:
         t = time.perf_counter()
         results[name] = {"errors": section_errors, "tables": section_tables, "scaling": section_scaling,
-                         "rebake": section_rebake}[name](args.quick)
+                         "rebake": section_rebake, "competitors": lambda quick: _competitors(quick, args)}[name](args.quick)
         results[name]["section_seconds"] = time.perf_counter() - t
         images = _pop_images(results)
         path.write_text(json.dumps(results, indent=1, default=float))
@@ -567,6 +571,12 @@ def main(argv=None):
         shutil.copy(out / "results.md", ROOT / "bench" / "RESULTS.md")
         for png in out.glob("*.png"):
             shutil.copy(png, plots / png.name)
+
+
+def _competitors(quick: bool, args) -> dict:
+    from pdic.bench import competitors
+
+    return competitors.section(quick, args.competitors, Path(args.out))
 
 
 def _pop_images(results) -> dict:

@@ -3,7 +3,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=.venv/bin/python
-if ! "$PY" -c "import matplotlib" 2>/dev/null; then
+if ! "$PY" -c "import matplotlib, pyoidn" 2>/dev/null; then
     "$PY" -m pip install -q -r requirements-bench.txt
 fi
 exec "$PY" -m bench.run "$@"

@@ -1,0 +1,86 @@
+"""The competitors bench's arithmetic (bench/competitors.py) on synthetic images: no Cycles, no OIDN."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pdic.bench import competitors
+
+
+def _field(h: int, w: int) -> np.ndarray:
+    """A smooth positive (h, w, 3) image, like a light map without noise."""
+    y, x = np.mgrid[0:h, 0:w] / max(h, w)
+    base = 1.0 + 0.5 * np.sin(6 * x) * np.cos(4 * y)
+    return np.stack([base, 0.8 * base, 0.6 * base], axis=2).astype(np.float32)
+
+
+def test_noise_corrected_error_recovers_bias_under_reference_noise():
+    """A 5 % biased image against a pair far noisier than 5 % (sizes not multiples of the block)."""
+    h, w = 300, 260
+    truth = _field(h, w)
+    mask = np.ones((h, w), bool)
+    mask[:, :30] = False
+    rng = np.random.default_rng(1)
+    pair = tuple(truth * (1 + 0.3 * rng.standard_normal(truth.shape)).astype(np.float32) for _ in range(2))
+    test = truth * 1.05
+    expected = np.sqrt(np.mean(((test - truth)[mask]) ** 2)) / truth[mask].mean()
+    err = competitors.errors(test, pair, mask)
+    assert err["texel"] == pytest.approx(expected, rel=0.1)
+    assert err["block"] == pytest.approx(expected, rel=0.1)
+    naive = np.sqrt(np.mean(((test - 0.5 * (pair[0] + pair[1]))[mask]) ** 2)) / truth[mask].mean()
+    assert naive > 2 * expected  # what the correction removes
+
+
+def test_block_error_forgives_noise_that_averages_out_in_a_block():
+    """+-20 % in a checkerboard (zero mean over each 8x8 block): large per texel, none per block."""
+    h, w = 64, 64
+    truth = _field(h, w)
+    mask = np.ones((h, w), bool)
+    checker = np.where((np.add.outer(np.arange(h), np.arange(w)) % 2) == 0, 1.2, 0.8)[..., None]
+    err = competitors.errors(truth * checker, (truth, truth), mask)
+    assert err["texel"] > 0.15
+    assert err["block"] < 0.01
+
+
+def test_block_means_ignore_uncovered_texels():
+    image = np.zeros((10, 10, 3), np.float32)
+    mask = np.zeros((10, 10), bool)
+    image[0, 0], mask[0, 0] = 4.0, True  # one covered texel in the first block
+    image[9, 9], mask[9, 9] = 2.0, True  # one in the padded last block
+    means, blocks = competitors.block_means(image, mask, 8)
+    assert means.shape == (2, 2, 3) and blocks.tolist() == [[True, False], [False, True]]
+    assert means[0, 0, 0] == 4.0 and means[1, 1, 0] == 2.0
+
+
+def _ladder(errors_at_cpu):
+    return [dict(method="Cycles", kind="all", cpu=t, error_texel=e) for t, e in errors_at_cpu]
+
+
+def test_equal_error_time_follows_the_ladder_log_log():
+    rows = _ladder([(t, 1 / np.sqrt(t)) for t in (1.0, 4.0, 16.0, 64.0)])  # Monte Carlo: error ~ t^-1/2
+    at = lambda e: competitors.cycles_cpu_at_error(rows, "Cycles", "all", "texel", e)  # noqa: E731
+    assert at(0.3)[0] == pytest.approx(1 / 0.3 ** 2) and at(0.3)[1] == "interpolated"
+    assert at(0.1)[0] == pytest.approx(100.0) and at(0.1)[1] == "extrapolated"
+    assert at(2.0) == (1.0, "at most")
+
+
+def test_equal_error_is_none_where_a_denoised_ladder_stops_falling():
+    rows = _ladder([(1.0, 0.05), (4.0, 0.031), (16.0, 0.030)])  # a denoiser's bias floor near 3 %
+    assert competitors.cycles_cpu_at_error(rows, "Cycles", "all", "texel", 0.01) == (None, None)
+
+
+def test_crop_window_centres_on_the_nearest_covered_texel_and_stays_inside():
+    h, w = 100, 80
+    position = np.zeros((h, w, 3))
+    position[..., 0], position[..., 1] = np.mgrid[0:h, 0:w]
+    mask = np.ones((h, w), bool)
+    mask[50, 50] = False
+    assert competitors.crop_window(position, mask, (50.0, 50.0, 0.0), side=20) in {(39, 40), (40, 39), (41, 40),
+                                                                                  (40, 41)}
+    assert competitors.crop_window(position, mask, (99.0, 79.0, 0.0), side=20) == (80, 60)
+
+
+def test_mean_ratio_reports_a_uniform_darkening():
+    truth = _field(32, 32)
+    mask = np.ones((32, 32), bool)
+    assert competitors.errors(0.8 * truth, (truth, truth), mask)["mean_ratio"] == pytest.approx(0.8, rel=1e-5)
