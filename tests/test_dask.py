@@ -1,0 +1,143 @@
+"""The heavy stages on a Dask LocalCluster (2 worker processes, 1 thread each) give the thread pool's light maps.
+
+Every chunk draws from a generator seeded by its index and the coordinator stitches the
+results in chunk order with the same code, so the light maps are equal bit for bit
+(no summation happens across chunks in a different order). Only the ray counter of the
+record-visibility rays of interpolation differs: those are counted on views of the BVH
+that live on the workers (``rays_cast``; every other counter is summed from the results).
+"""
+from __future__ import annotations
+
+import os
+import pickle
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+RESOLUTION = 32
+
+
+def _extract(blend: str):
+    import bpy
+
+    from pdic.pdic_addon.extract import extract_scene
+
+    bpy.ops.wm.open_mainfile(filepath=str(ROOT / "sample_blends" / blend))
+    objects = [o for o in bpy.context.scene.objects if o.type == "MESH"]
+    extraction = extract_scene(bpy.context.evaluated_depsgraph_get(), objects, "LightMap",
+                               {o.name: (RESOLUTION, RESOLUTION) for o in objects})
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    return extraction.scene
+
+
+def _settings(photons: int):
+    from pdic.core.settings import preset
+
+    # FINAL runs all three heavy stages: photon batches, refinement, texels (with hole records).
+    return preset("FINAL", photons=photons, hemisphere_theta=6, hemisphere_phi=12, max_bounces=3)
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    from pdic.core.dask_executor import DaskExecutor
+
+    executor = DaskExecutor("local:2", threads=1)
+    yield executor
+    executor.close()
+
+
+def _thread_pool_bake(scene, settings):
+    from pdic.core.executor import Executor
+    from pdic.core.pipeline import bake
+
+    with Executor(2) as pool:
+        return bake(scene, settings, executor=pool)
+
+
+def _assert_same_lightmaps(a, b):
+    assert set(a.lightmaps) == set(b.lightmaps)
+    for name in a.lightmaps:
+        assert np.array_equal(a.lightmaps[name], b.lightmaps[name]), name
+        assert np.array_equal(a.indirect[name], b.indirect[name]), name
+
+
+@pytest.mark.parametrize("blend", ["cornell_point.blend", "textured_room.blend"])
+def test_local_cluster_light_maps_equal_thread_pool_bit_for_bit(cluster, blend):
+    from pdic.core.pipeline import bake
+
+    scene = _extract(blend)
+    settings = _settings(40_000)
+    calls_before = cluster.shipping.calls
+    on_cluster = bake(scene, settings, executor=cluster)
+    reference = _thread_pool_bake(scene, settings)
+    _assert_same_lightmaps(on_cluster, reference)
+    ours, theirs = on_cluster.stats["counters"], reference.stats["counters"]
+    for key in ("photons_stored", "photon_rays", "records", "shadow_rays", "refine_rays_cast"):
+        assert ours.get(key) == theirs.get(key), key
+    names = [name for name, _, _ in cluster.shipping.per_call[calls_before:]]
+    assert {"trace_photons.<locals>.run", "refine_records.<locals>.run", "shade_direct.<locals>.run"} <= set(names)
+
+
+def test_each_task_ships_its_chunk_not_the_scene(cluster):
+    """The closure (scene, BVH triangles, texels) is scattered once per stage; a task carries only its chunk."""
+    s = cluster.shipping
+    assert s.tasks > 0 and s.task_bytes / s.tasks < 1_000
+    assert s.scattered_bytes / s.calls > 10 * s.task_bytes / s.tasks
+
+
+def test_killing_a_worker_mid_bake_gives_the_same_light_maps(cluster):
+    from pdic.core.executor import Progress
+    from pdic.core.pipeline import bake
+
+    scene = _extract("cornell_point.blend")
+    settings = _settings(60_000)
+    client = cluster.client
+    killed = []
+
+    def kill_once(stage, fraction, eta):
+        # After the first refinement chunks: a worker dies holding scattered data and running tasks.
+        if not killed and stage.startswith("Pass 3") and fraction > 0:
+            workers = sorted(client.scheduler_info()["workers"])
+            killed.append(workers[0])
+            threading.Thread(target=client.run, args=(os._exit, 1), kwargs={"workers": [workers[0]]},
+                             daemon=True).start()
+
+    on_cluster = bake(scene, settings, Progress(kill_once), executor=cluster)
+    assert killed
+    _assert_same_lightmaps(on_cluster, _thread_pool_bake(scene, settings))
+
+
+def test_cancel_stops_a_cluster_bake_and_leaves_no_tasks(cluster):
+    from pdic.core.executor import Cancelled, Progress
+    from pdic.core.pipeline import bake
+
+    scene = _extract("cornell_point.blend")
+    progress = Progress(lambda stage, fraction, eta: progress.cancel() if fraction > 0 else None)
+    with pytest.raises(Cancelled):
+        bake(scene, _settings(40_000), progress, executor=cluster)
+    client = cluster.client
+    assert client.run_on_scheduler(lambda dask_scheduler: len(dask_scheduler.tasks)) == 0
+
+
+def test_ray_caster_pickles_its_triangles_and_rebuilds_the_same_bvh():
+    from pdic.core import rays
+
+    tris = np.random.default_rng(3).uniform(-1, 1, (200, 3, 3))
+    caster = rays.RayCaster(tris)
+    copy = pickle.loads(pickle.dumps(caster))
+    o = np.zeros((500, 3))
+    d = np.random.default_rng(4).normal(size=(500, 3))
+    a, b = caster.intersect(o, d), copy.intersect(o, d)
+    assert np.array_equal(a.triangle, b.triangle) and np.array_equal(a.t, b.t)
+    assert copy.executor.workers == 1
+    assert pickle.loads(pickle.dumps(caster))._scene is copy._scene  # one BVH per process and triangles
+
+
+def test_unknown_scheduler_names_the_address():
+    from pdic.core.dask_executor import DaskExecutor, DaskUnavailable
+
+    with pytest.raises(DaskUnavailable, match="tcp://127.0.0.1:9"):
+        DaskExecutor("tcp://127.0.0.1:9", timeout=2)
