@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import pickle
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -102,12 +103,18 @@ def test_killing_a_worker_mid_bake_gives_the_same_light_maps(cluster):
         if not killed and stage.startswith("Pass 3") and fraction > 0:
             workers = sorted(client.scheduler_info()["workers"])
             killed.append(workers[0])
-            threading.Thread(target=client.run, args=(os._exit, 1), kwargs={"workers": [workers[0]]},
-                             daemon=True).start()
+            threading.Thread(target=_exit_worker, args=(client, workers[0]), daemon=True).start()
 
     on_cluster = bake(scene, settings, Progress(kill_once), executor=cluster)
-    assert killed
+    assert killed and killed[0] not in client.scheduler_info()["workers"]  # it died (its nanny starts a new one)
     _assert_same_lightmaps(on_cluster, _thread_pool_bake(scene, settings))
+
+
+def _exit_worker(client, address):
+    try:
+        client.run(os._exit, 1, workers=[address])
+    except OSError:  # the worker dies before it answers
+        pass
 
 
 def test_cancel_stops_a_cluster_bake_and_leaves_no_tasks(cluster):
@@ -115,11 +122,21 @@ def test_cancel_stops_a_cluster_bake_and_leaves_no_tasks(cluster):
     from pdic.core.pipeline import bake
 
     scene = _extract("cornell_point.blend")
-    progress = Progress(lambda stage, fraction, eta: progress.cancel() if fraction > 0 else None)
+    calls = cluster.shipping.calls
+    progress = Progress(lambda stage, fraction, eta: progress.cancel()
+                        if fraction > 0 and cluster.shipping.calls > calls else None)
     with pytest.raises(Cancelled):
         bake(scene, _settings(40_000), progress, executor=cluster)
+    assert cluster.shipping.calls == calls + 1  # noticed within the first stage on the cluster
     client = cluster.client
-    assert client.run_on_scheduler(lambda dask_scheduler: len(dask_scheduler.tasks)) == 0
+    deadline = time.monotonic() + 10
+    while client.run_on_scheduler(_task_count) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert client.run_on_scheduler(_task_count) == 0  # the chunks and the scattered closure are released
+
+
+def _task_count(dask_scheduler):
+    return len(dask_scheduler.tasks)
 
 
 def test_ray_caster_pickles_its_triangles_and_rebuilds_the_same_bvh():
