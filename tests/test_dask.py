@@ -158,3 +158,33 @@ def test_unknown_scheduler_names_the_address():
 
     with pytest.raises(DaskUnavailable, match="tcp://127.0.0.1:9"):
         DaskExecutor("tcp://127.0.0.1:9", timeout=2)
+
+
+def _headless(*args):
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, str(ROOT / "pdic_bake.py"), *map(str, args)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_headless_scheduler_flag_writes_the_thread_pool_images(tmp_path):
+    fast = ["--blend", ROOT / "sample_blends" / "cornell_point.blend", "--quality", "FINAL", "--photons", "20000",
+            "--resolution", "16", "--atlas-size", "0"]
+    pool = _headless(*fast, "--threads", "2", "--output", tmp_path / "pool")
+    dask = _headless(*fast, "--threads", "1", "--scheduler", "local:2", "--output", tmp_path / "dask")
+    assert pool.returncode == 0 and dask.returncode == 0, pool.stderr + dask.stderr
+    images = sorted(p.name for p in (tmp_path / "pool").glob("*.exr"))
+    assert images and images == sorted(p.name for p in (tmp_path / "dask").glob("*.exr"))
+    for name in images:
+        assert (tmp_path / "pool" / name).read_bytes() == (tmp_path / "dask" / name).read_bytes(), name
+
+
+@pytest.mark.parametrize("address, code, message", [("host:8786", 2, "use tcp://host:port"),
+                                                     ("local:0", 2, "local:N with N >= 1"),
+                                                     ("tcp://127.0.0.1:9", 1, "cannot reach the Dask scheduler")])
+def test_headless_bad_scheduler_names_the_address(tmp_path, address, code, message):
+    r = _headless("--blend", ROOT / "sample_blends" / "cornell_point.blend", "--output", tmp_path / "maps",
+                  "--scheduler", address, "--resolution", "16")
+    assert r.returncode == code and message in r.stderr and address in r.stderr
+    assert not (tmp_path / "maps").exists()
