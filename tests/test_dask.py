@@ -188,3 +188,29 @@ def test_headless_bad_scheduler_names_the_address(tmp_path, address, code, messa
                   "--scheduler", address, "--resolution", "16")
     assert r.returncode == code and message in r.stderr and address in r.stderr
     assert not (tmp_path / "maps").exists()
+
+
+def test_scheduler_preference_reaches_the_bake_and_an_unreachable_one_is_named(blender):
+    from pdic import pdic_addon
+    from pdic.pdic_addon import job as job_module
+    from pdic.pdic_addon import operators, preferences
+    from tools.ui_recorder import RecordingLayout, _disable_preferences, _enable_preferences
+
+    pdic_addon.register()
+    try:
+        prefs = _enable_preferences(blender)
+        prefs.scheduler = " tcp://127.0.0.1:9 "
+        layout = RecordingLayout()
+        preferences.draw_preferences(layout, prefs)
+        assert "scheduler" in layout.props()
+        blender.ops.wm.open_mainfile(filepath=str(ROOT / "sample_blends" / "cornell_point.blend"))
+        prefs = _enable_preferences(blender)  # opening a file keeps the preferences; re-read them
+        uvs_before = {m.name: len(m.uv_layers) for m in blender.data.meshes}
+        job = job_module.BakeJob(blender.context, operators._settings(blender.context))
+        assert job.scheduler == "tcp://127.0.0.1:9"
+        with pytest.raises(job_module.BakeError, match="cannot reach the Dask scheduler at 'tcp://127.0.0.1:9'"):
+            job.run()
+        assert {m.name: len(m.uv_layers) for m in blender.data.meshes} == uvs_before  # rolled back
+        _disable_preferences(blender)
+    finally:
+        pdic_addon.unregister()
