@@ -5,7 +5,9 @@ with ``fn`` a closure over the stage's arrays (the scene, a BVH, the texels). He
 call becomes:
 
 1. ``fn`` is pickled once (cloudpickle: closures by value, PDIC functions by reference)
-   and scattered once to every worker; a worker unpickles it once per call, and a
+   with its large arrays (triangles, texels, photons, records) replaced by content keys:
+   each such array goes to every worker once per executor (a bake), the rest of the
+   closure (kilobytes) once per call. A worker unpickles the closure once per call, and a
    :class:`~core.rays.RayCaster` inside it rebuilds its Embree scene at most once per
    bake and worker process (cached by a digest of the triangles).
 2. One task per chunk ships only ``(index, chunk)`` (a slice or a photon batch: about
@@ -26,22 +28,30 @@ from __future__ import annotations
 
 import hashlib
 import io
+import pickle
 import sys
 import threading
 import time
 import zipfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
+
 from .executor import Executor, Progress
 
+MIN_TASKS = 2
+"""Calls of fewer chunks run on the coordinator (most hole-record rounds: one small chunk each)."""
 RETRIES = 2
 """Re-runs of a chunk that raised on a worker (a lost worker's chunks are re-run by the scheduler)."""
 POLL_SECONDS = 0.05
 """How often the coordinator looks for finished chunks and a cancel request."""
 LOCAL_PREFIX = "local:"
 """``local:N`` starts a LocalCluster of N single-thread worker processes on this machine."""
+SHARED_ARRAY_BYTES = 64 * 1024
+"""Arrays at least this large (triangles, texels, photons, records) go to every worker once per
+executor, keyed by content, and closures refer to them by key: a bake ships its geometry once."""
 CORE_PACKAGE = __package__
 """The coordinator's name of ``core`` (``pdic.core``, ``bl_ext.<repo>.pdic.core``): workers import it so."""
 
@@ -59,24 +69,38 @@ def install_hint() -> str:
     return f"pip install dask distributed into Blender's Python: {sys.executable} -m pip install dask distributed"
 
 
+@dataclass(frozen=True)
+class Call:
+    """One ``map_chunks`` call: the closure's name and task-key prefix, its pickled size without the
+    shared arrays (bytes, sent once to every worker), tasks, their pickled arguments (bytes), wall seconds."""
+
+    name: str
+    key: str
+    closure_bytes: int
+    tasks: int
+    task_bytes: int
+    seconds: float
+
+
 @dataclass
 class Shipping:
     """Bytes the executor sent, summed over its ``map_chunks`` calls.
 
-    scattered_bytes : pickled closures, each sent once to every worker (multiply by workers for traffic).
+    array_bytes, arrays : large arrays sent to every worker once (multiply by workers for traffic).
+    scattered_bytes : pickled closures without those arrays, each sent once to every worker.
     task_bytes : pickled ``(index, chunk)`` arguments of every task.
-    tasks, calls : tasks submitted, ``map_chunks`` calls made.
-    per_call : (stage closure name, closure bytes, tasks) of every call, in order.
+    tasks, calls : tasks submitted, ``map_chunks`` calls made; per_call : a :class:`Call` each, in order.
+    local_calls : calls of one chunk, run on the coordinator (:data:`MIN_TASKS`).
     """
 
+    array_bytes: int = 0
+    arrays: int = 0
     scattered_bytes: int = 0
     task_bytes: int = 0
     tasks: int = 0
     calls: int = 0
-    per_call: list = None
-
-    def __post_init__(self):
-        self.per_call = [] if self.per_call is None else self.per_call
+    local_calls: int = 0
+    per_call: list = field(default_factory=list)
 
 
 class DaskExecutor(Executor):
@@ -94,6 +118,7 @@ class DaskExecutor(Executor):
         super().__init__(threads)
         self.scheduler = scheduler
         self.shipping = Shipping()
+        self._shared: dict = {}  # content key -> future of an array on every worker
         self._cluster = None
         try:
             self.client = self._connect(scheduler, timeout)
@@ -140,17 +165,17 @@ class DaskExecutor(Executor):
 
     def map_chunks(self, fn: Callable, chunks: list, progress: Progress | None = None) -> list:
         """``fn(index, chunk)`` over ``chunks`` as Dask tasks, results in order (see the module docstring)."""
-        if not chunks:
-            return []
-        import cloudpickle
+        if len(chunks) < MIN_TASKS:  # one task runs no faster on a worker than here, and ships nothing here
+            self.shipping.local_calls += 1
+            return super().map_chunks(fn, chunks, progress)
         from distributed import as_completed
 
-        blob = cloudpickle.dumps(fn, protocol=5)
-        key = f"pdic-{hashlib.blake2b(blob, digest_size=12).hexdigest()}-{self.shipping.calls}"
-        self._count(fn, blob, chunks)
+        start = time.perf_counter()
+        blob, arrays = self._pickle(fn)
+        key = f"pdic-{self.shipping.calls}-{hashlib.blake2b(blob, digest_size=8).hexdigest()}"
         shared = self.client.scatter(blob, broadcast=True, hash=False)
-        futures = [self.client.submit(run_chunk, key, shared, index, chunk, key=f"{key}-{index}", retries=RETRIES)
-                   for index, chunk in enumerate(chunks)]
+        futures = [self.client.submit(run_chunk, key, shared, arrays, index, chunk, key=f"{key}-{index}",
+                                      retries=RETRIES) for index, chunk in enumerate(chunks)]
         position = {f.key: i for i, f in enumerate(futures)}
         results = [None] * len(chunks)
         try:
@@ -175,9 +200,41 @@ class DaskExecutor(Executor):
             raise
         finally:
             self.client.cancel([shared])
-        return results
+        self._count(fn, key, blob, chunks, time.perf_counter() - start)
+        return results  # the shared arrays stay on the workers for the next call, until close()
 
-    def _count(self, fn, blob: bytes, chunks: list):
+    def _pickle(self, fn: Callable) -> tuple[bytes, dict]:
+        """``fn`` pickled with its large arrays replaced by content keys, and {key: scattered array}."""
+        import cloudpickle
+
+        used = {}
+        share, shared = self._share, self._shared
+
+        class LargeArraysByKey(cloudpickle.Pickler):
+            def persistent_id(self, obj):
+                if isinstance(obj, np.ndarray) and obj.nbytes >= SHARED_ARRAY_BYTES and not obj.dtype.hasobject:
+                    digest = share(obj)
+                    used[digest] = shared[digest]
+                    return digest
+                return None
+
+        out = io.BytesIO()
+        LargeArraysByKey(out, protocol=5).dump(fn)
+        return out.getvalue(), used
+
+    def _share(self, array: np.ndarray) -> str:
+        """The content key of ``array``, scattered to every worker the first time it is seen."""
+        array = np.ascontiguousarray(array)
+        h = hashlib.blake2b(f"{array.dtype.str}{array.shape}".encode(), digest_size=16)
+        h.update(array.reshape(-1).view(np.uint8) if array.size else b"")
+        digest = h.hexdigest()
+        if digest not in self._shared:
+            self._shared[digest] = self.client.scatter(array, broadcast=True, hash=False)
+            self.shipping.array_bytes += array.nbytes
+            self.shipping.arrays += 1
+        return digest
+
+    def _count(self, fn, key: str, blob: bytes, chunks: list, seconds: float):
         import pickle
 
         task_bytes = sum(len(pickle.dumps((i, c), protocol=5)) for i, c in enumerate(chunks))
@@ -186,7 +243,7 @@ class DaskExecutor(Executor):
         s.task_bytes += task_bytes
         s.tasks += len(chunks)
         s.calls += 1
-        s.per_call.append((getattr(fn, "__qualname__", "?"), len(blob), len(chunks)))
+        s.per_call.append(Call(getattr(fn, "__qualname__", "?"), key, len(blob), len(chunks), task_bytes, seconds))
 
     def close(self):
         for resource in ("client", "_cluster"):
@@ -197,16 +254,26 @@ class DaskExecutor(Executor):
         super().close()
 
 
-def run_chunk(key: str, blob: bytes, index: int, chunk):
-    """Worker side: ``fn(index, chunk)`` with ``fn`` unpickled once per worker and ``map_chunks`` call."""
+def run_chunk(key: str, blob: bytes, arrays: dict, index: int, chunk):
+    """Worker side: ``fn(index, chunk)`` with ``fn`` unpickled once per worker and ``map_chunks`` call.
+
+    arrays : {content key: array} the closure refers to, already in this worker's memory.
+    """
     with _loaded_lock:
         fn = _loaded_functions.get(key)
         if fn is None:
-            import cloudpickle
-
             _loaded_functions.clear()  # calls run one after another: the previous stage's closure is done
-            fn = _loaded_functions[key] = cloudpickle.loads(blob)
+            fn = _loaded_functions[key] = _ArraysFromWorker(io.BytesIO(blob), arrays).load()
     return fn(index, chunk)
+
+
+class _ArraysFromWorker(pickle.Unpickler):
+    def __init__(self, file, arrays: dict):
+        super().__init__(file)
+        self.arrays = arrays
+
+    def persistent_load(self, digest):
+        return self.arrays[digest]
 
 
 def core_zip() -> bytes:
