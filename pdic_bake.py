@@ -14,7 +14,8 @@ prints per-stage times, texel counts and output paths. The .blend on disk is
 never modified; ``--save-blend PATH`` saves the baked scene (UV maps, images,
 material copies) as a new file, never the input. On error the message names
 the culprit and the exit code is 1 (2 for bad arguments); Ctrl+C cancels the
-bake, leaves every output as it was and exits with 130.
+bake, leaves every output as it was and exits with 130. ``--scheduler tcp://host:port``
+(or ``local:N``) runs the heavy stages on a Dask cluster (README, "Baking on a Dask cluster").
 """
 from __future__ import annotations
 

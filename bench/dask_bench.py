@@ -126,11 +126,11 @@ def main(argv=None) -> int:
         report["lightmaps_equal_first_run"] = all(np.array_equal(first[k], maps[k]) for k in first)
         print_report(report)
         reports.append(report)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"scene": args.scene, "quality": args.quality, "photons": settings.photons,
-                               "runs": reports}, indent=1, default=str))
-    print(f"\nwritten: {out}")
+        out = Path(args.out)  # after every run: a long series that is stopped keeps what it measured
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps({"scene": args.scene, "quality": args.quality, "photons": settings.photons,
+                                   "runs": reports}, indent=1, default=str))
+        print(f"written: {out}", flush=True)
     return 0
 
 

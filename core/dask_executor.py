@@ -30,6 +30,7 @@ import hashlib
 import io
 import pickle
 import sys
+import tempfile
 import threading
 import time
 import zipfile
@@ -136,7 +137,7 @@ class DaskExecutor(Executor):
         if scheduler.startswith(LOCAL_PREFIX):
             workers = int(scheduler[len(LOCAL_PREFIX):])
             self._cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                         dashboard_address=None)
+                                         dashboard_address=":0")  # any free port
             return Client(self._cluster, timeout=timeout)
         try:
             return Client(scheduler, timeout=timeout)
@@ -147,7 +148,7 @@ class DaskExecutor(Executor):
         """Ship ``core`` as a zip under its coordinator name (the same on every worker that joins later)."""
         blob = core_zip()
         digest = hashlib.blake2b(blob, digest_size=8).hexdigest()
-        folder = Path(_temporary_directory()) / f"pdic-core-{digest}"
+        folder = Path(tempfile.gettempdir()) / f"pdic-core-{digest}"
         folder.mkdir(parents=True, exist_ok=True)
         path = folder / "pdic_core.zip"
         if not path.exists():
@@ -158,10 +159,6 @@ class DaskExecutor(Executor):
             from distributed.diagnostics.plugin import UploadFile
 
             self.client.register_plugin(UploadFile(str(path)))
-
-    @property
-    def worker_count(self) -> int:
-        return len(self.client.scheduler_info(n_workers=-1)["workers"])
 
     def map_chunks(self, fn: Callable, chunks: list, progress: Progress | None = None) -> list:
         """``fn(index, chunk)`` over ``chunks`` as Dask tasks, results in order (see the module docstring)."""
@@ -289,9 +286,3 @@ def core_zip() -> bytes:
             info = zipfile.ZipInfo("/".join(parts) + "/" + source.name, date_time=(2000, 1, 1, 0, 0, 0))
             z.writestr(info, source.read_bytes())
     return out.getvalue()
-
-
-def _temporary_directory() -> str:
-    import tempfile
-
-    return tempfile.gettempdir()
