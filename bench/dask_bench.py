@@ -67,6 +67,16 @@ def per_stage(calls: list, seconds: dict) -> dict:
     return dict(rows)
 
 
+def array_bytes_by_rows(shapes: list, triangles: int) -> dict:
+    """Bytes of the shared arrays grouped by what their rows are: triangles, or a row count
+    (texel samples, photons, records: compare with the bake's counters)."""
+    out = defaultdict(int)
+    for dtype, shape in shapes:
+        rows = shape[0] if shape else 1
+        out["triangles" if rows == triangles else str(rows)] += int(np.prod(shape)) * np.dtype(dtype).itemsize
+    return dict(sorted(out.items(), key=lambda kv: -kv[1]))
+
+
 def run_once(scene, settings, workers: int) -> tuple[dict, dict]:
     from distributed import get_task_stream
 
@@ -87,6 +97,8 @@ def run_once(scene, settings, workers: int) -> tuple[dict, dict]:
             "calls_on_coordinator": s.local_calls,
             "triangles": len(scene.geometry.positions),
             "per_stage": per_stage(s.per_call, task_seconds(stream.data, s.per_call)),
+            "array_bytes_by_rows": array_bytes_by_rows(s.array_shapes, len(scene.geometry.positions)),
+            "counters": result.stats.get("counters", {}),
         }
     return report, result.lightmaps
 

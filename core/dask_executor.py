@@ -87,7 +87,8 @@ class Call:
 class Shipping:
     """Bytes the executor sent, summed over its ``map_chunks`` calls.
 
-    array_bytes, arrays : large arrays sent to every worker once (multiply by workers for traffic).
+    array_bytes, arrays : large arrays sent to every worker once (multiply by workers for traffic);
+        array_shapes : (dtype, shape) of each.
     scattered_bytes : pickled closures without those arrays, each sent once to every worker.
     task_bytes : pickled ``(index, chunk)`` arguments of every task.
     tasks, calls : tasks submitted, ``map_chunks`` calls made; per_call : a :class:`Call` each, in order.
@@ -96,6 +97,7 @@ class Shipping:
 
     array_bytes: int = 0
     arrays: int = 0
+    array_shapes: list = field(default_factory=list)
     scattered_bytes: int = 0
     task_bytes: int = 0
     tasks: int = 0
@@ -229,6 +231,7 @@ class DaskExecutor(Executor):
             self._shared[digest] = self.client.scatter(array, broadcast=True, hash=False)
             self.shipping.array_bytes += array.nbytes
             self.shipping.arrays += 1
+            self.shipping.array_shapes.append((array.dtype.str, array.shape))
         return digest
 
     def _count(self, fn, key: str, blob: bytes, chunks: list, seconds: float):
