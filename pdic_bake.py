@@ -14,7 +14,8 @@ prints per-stage times, texel counts and output paths. The .blend on disk is
 never modified; ``--save-blend PATH`` saves the baked scene (UV maps, images,
 material copies) as a new file, never the input. On error the message names
 the culprit and the exit code is 1 (2 for bad arguments); Ctrl+C cancels the
-bake, leaves every output as it was and exits with 130.
+bake, leaves every output as it was and exits with 130. ``--scheduler tcp://host:port``
+(or ``local:N``) runs the heavy stages on a Dask cluster (README, "Baking on a Dask cluster").
 """
 from __future__ import annotations
 
@@ -58,6 +59,9 @@ def parse_args(args: list[str]) -> argparse.Namespace:
     p.add_argument("--photons", type=int)
     p.add_argument("--seed", type=int)
     p.add_argument("--threads", type=int, help="worker threads (0 = all cores)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run the heavy stages on a Dask cluster: tcp://host:port of a running 'dask scheduler', "
+                        "or local:N for N single-thread worker processes here (needs dask and distributed)")
     p.add_argument("--format", choices=("EXR_HALF", "EXR_FLOAT"), help="image format")
     p.add_argument("--save-blend", metavar="PATH", help="save the baked scene as this .blend")
     p.add_argument("--preview-png", metavar="PATH", help="render the scene camera's view lit by the light maps")
@@ -75,6 +79,8 @@ def parse_args(args: list[str]) -> argparse.Namespace:
                                  ("--preview-width", ns.preview_width, 8)):
         if value is not None and value < least:
             p.error(f"{option} {value}: must be at least {least}")
+    if ns.scheduler is not None and not scheduler_address_ok(ns.scheduler):
+        p.error(f"--scheduler {ns.scheduler!r}: use tcp://host:port (or tls://, ws://, wss://) or local:N with N >= 1")
     if not math.isfinite(ns.exposure):
         p.error(f"--exposure {ns.exposure}: must be finite")
     if ns.passes is not None:
@@ -83,6 +89,14 @@ def parse_args(args: list[str]) -> argparse.Namespace:
             p.error(f"--passes {ns.passes!r}: use direct, indirect or direct,indirect")
         ns.passes = passes
     return ns
+
+
+def scheduler_address_ok(address: str) -> bool:
+    """``tcp://host:port`` (or tls, ws, wss) or ``local:N`` with N >= 1."""
+    if address.startswith("local:"):
+        return address[6:].isdigit() and int(address[6:]) >= 1
+    protocol, _, rest = address.partition("://")
+    return protocol in ("tcp", "tls", "ws", "wss") and bool(rest)
 
 
 def load_package():
@@ -265,7 +279,8 @@ def bake(args) -> int:
           f"{'+'.join(p for p in ('direct', 'indirect') if getattr(settings, p))}")
 
     job = job_module.BakeJob(bpy.context, settings, objects=objects, output_folder=folder,
-                             image_format=args.format or props.image_format, atlas_size=args.atlas_size)
+                             image_format=args.format or props.image_format, atlas_size=args.atlas_size,
+                             scheduler=args.scheduler)
     start = time.perf_counter()
     try:
         report = job_module.JobRunner(job, progress).run()

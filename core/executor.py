@@ -3,8 +3,8 @@
 The core's heavy stages (photon batches, record refinement, texel shading)
 are pure functions of their chunk of arrays, mapped through an
 :class:`Executor`. Here that is a thread pool (embreex and numpy release the
-GIL); a distributed executor (Dask's ``Client.map`` has the same shape) can
-be dropped in later without touching the stages.
+GIL) by default, or a Dask cluster (:class:`core.dask_executor.DaskExecutor`,
+chosen by :func:`make_executor`) without touching the stages.
 
 Progress and cancellation also live here: a :class:`Progress` is handed down
 the pipeline; stages report fractions and call :meth:`Progress.check` between
@@ -54,6 +54,19 @@ class Executor:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def make_executor(threads: int = 0, scheduler: str = "") -> Executor:
+    """The bake's executor: a pool of ``threads`` (0 = all cores) or, given a ``scheduler`` address
+    (``tcp://host:port``, ``local:N``), a :class:`core.dask_executor.DaskExecutor` whose coordinator
+    traces its own ray batches on ``threads``. Raises ``DaskUnavailable`` (a RuntimeError) with the
+    install command or the unreachable address."""
+    threads = threads or default_workers()
+    if not scheduler:
+        return Executor(threads)
+    from .dask_executor import DaskExecutor  # Dask is optional: imported only when asked for
+
+    return DaskExecutor(scheduler, threads)
 
 
 def serial_executor() -> Executor:

@@ -111,18 +111,18 @@ def interpolate(cache: IrradianceCache, a: float, gradients: bool, p: np.ndarray
         its ``rays_cast`` counts the visibility rays.
     """
     lookup = CacheLookup(cache, a, gradients)
-    views = []
 
     def run(index, s):
         chunk = copy.copy(lookup)  # shares the cache's arrays; a view of the BVH per chunk counts its own rays
         if caster is not None:
             chunk.caster = caster.serial()
-            views.append(chunk.caster)
-        return (chunk.irradiance_and_zone if with_zone else chunk.irradiance)(p[s], n[s])
+        part = (chunk.irradiance_and_zone if with_zone else chunk.irradiance)(p[s], n[s])
+        return part, chunk.caster.rays_cast if caster is not None else 0  # returned: a Dask chunk runs elsewhere
 
-    parts = executor.map_chunks(run, slices(len(p), TEXEL_CHUNK), progress)
+    results = executor.map_chunks(run, slices(len(p), TEXEL_CHUNK), progress)
+    parts = [part for part, _ in results]
     if caster is not None:
-        caster.rays_cast += sum(view.rays_cast for view in views)
+        caster.rays_cast += sum(rays for _, rays in results)
     if not parts:
         parts = [(np.zeros((0, 3)), np.zeros(0), np.zeros(0))[:3 if with_zone else 2]]
     return tuple(np.concatenate([part[i] for part in parts]) for i in range(len(parts[0])))

@@ -14,6 +14,7 @@ on one thread, 11.5 M/s on two, for a 20k-triangle height field).
 from __future__ import annotations
 
 import copy
+import hashlib
 import threading
 import time
 from dataclasses import dataclass
@@ -105,10 +106,9 @@ class RayCaster:
         self.face_normals = unit_face_normals(positions)
         """(T, 3) unit geometric normals of the triangles (zero for degenerate ones), for hit tests."""
         self.executor = executor or serial_executor()
-        self._scene = rtcore_scene.EmbreeScene()
-        if len(positions):
-            # Embree rejects no triangle for being degenerate, it just never reports hits on it.
-            mesh_construction.TriangleMesh(self._scene, positions.astype(np.float32))
+        self._positions = positions  # the scene's own array (no copy): pickling ships it, see __getstate__
+        self._digest = None
+        self._scene = _embree_scene(positions)
         self.rays_cast = 0  # closest-hit and occlusion rays traced so far (statistics)
         self.clock = EmbreeClock()
         """Time inside Embree calls, shared with :meth:`serial` views (statistics)."""
@@ -127,6 +127,26 @@ class RayCaster:
         view.executor = serial_executor()
         view.rays_cast = 0
         return view
+
+    # ------------------------------------------------- shipping to another process
+    def __copy__(self) -> "RayCaster":
+        view = object.__new__(RayCaster)
+        view.__dict__.update(self.__dict__)
+        return view
+
+    def __getstate__(self) -> dict:
+        """The triangles and a digest of them, not the BVH (embreex scenes do not pickle) nor the executor."""
+        if self._digest is None:
+            self._digest = hashlib.blake2b(self._positions.tobytes(), digest_size=16).hexdigest()
+        return {k: v for k, v in self.__dict__.items() if k not in ("_scene", "executor", "face_normals")}
+
+    def __setstate__(self, state: dict):
+        """Rebuild on a worker: the BVH and normals come from the worker's cache when the same
+        triangles arrived before (every stage of a bake ships the same caster), and ray batches
+        trace on the calling thread (the worker's chunk already is the unit of parallelism)."""
+        self.__dict__.update(state)
+        self.executor = serial_executor()
+        self._scene, self.face_normals = _shipped_scene(self._digest, self._positions)
 
     # ---------------------------------------------------------------- helpers
     def offset_origins(self, origins: np.ndarray, normals: np.ndarray | None, directions: np.ndarray) -> np.ndarray:
@@ -326,6 +346,30 @@ class RayCaster:
         # Stop short of the far end by epsilon so a target on a surface never hits it.
         t_max = np.maximum(dist - (self.epsilon if target_normals is None else 0.0), 0.0)
         return np.where(dist > 0, self.transmittance(start, directions, t_max), 0.0)
+
+
+def _embree_scene(positions: np.ndarray):
+    scene = rtcore_scene.EmbreeScene()
+    if len(positions):
+        # Embree rejects no triangle for being degenerate, it just never reports hits on it.
+        mesh_construction.TriangleMesh(scene, positions.astype(np.float32))
+    return scene
+
+
+_shipped: dict = {}
+"""Embree scenes (and face normals) rebuilt from pickled casters in this process, by triangle digest:
+the last :data:`SHIPPED_SCENES` (a worker serves one bake at a time; a bake may trace two sets of triangles)."""
+SHIPPED_SCENES = 2
+_shipped_lock = threading.Lock()
+
+
+def _shipped_scene(digest: str, positions: np.ndarray):
+    with _shipped_lock:
+        if digest not in _shipped:
+            while len(_shipped) >= SHIPPED_SCENES:
+                _shipped.pop(next(iter(_shipped)))
+            _shipped[digest] = (_embree_scene(positions), unit_face_normals(positions))
+        return _shipped[digest]
 
 
 def _unit(v: np.ndarray) -> np.ndarray:

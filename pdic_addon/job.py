@@ -39,7 +39,8 @@ import numpy as np
 from ..core import bake_cache
 from ..core import manifest as core_manifest
 from ..core import unwrap
-from ..core.executor import Cancelled, Progress
+from ..core.dask_executor import DaskUnavailable
+from ..core.executor import Cancelled, Progress, make_executor
 from ..core.scene import SceneError
 from ..core.settings import BakeSettings
 from . import atlas_bake, overlay, preferences, uvmaps, writeback
@@ -259,13 +260,15 @@ class BakeJob:
     cache_dir : unwrap cache folder (None: :func:`default_cache_dir`, from the add-on preferences).
     atlas_size : > 0 packs all objects into shared atlases of this size (:mod:`.atlas_bake`); 0 = a map
         each; default ``scene.pdic.atlas_size``.
+    scheduler : Dask scheduler the heavy stages run on (``tcp://host:port``, ``local:N``); "" = the
+        thread pool; None = the add-on preference.
     """
 
     STEPS = (("choose", MAIN), ("unwrap", WORKER), ("extract", MAIN), ("compute", WORKER), ("finish", MAIN))
 
     def __init__(self, context, settings: BakeSettings, objects=None, selected_only: bool = False,
                  output_folder: str | None = None, image_format: str | None = None, cache_dir=None,
-                 atlas_size: int | None = None):
+                 atlas_size: int | None = None, scheduler: str | None = None):
         self.scene = context.scene
         self.view_layer = context.view_layer
         self.context = context
@@ -278,6 +281,7 @@ class BakeJob:
         self.cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
         # Resolved here, on the main thread: the worker steps must not touch bpy.
         self.bake_cache_dir = preferences.cache_dir(sub="bake_cache")
+        self.scheduler = scheduler if scheduler is not None else preferences.scheduler()
         self.txn = Transaction()
         self.warnings: list[str] = []
         self.timings: dict[str, float] = {}
@@ -493,7 +497,12 @@ class BakeJob:
         # Re-bakes of an unchanged scene reuse the photon map and cache (content-keyed, on disk
         # under the preferences' cache folder, pruned to its budget; not held in Blender's memory).
         store = bake_cache.BakeCache(self.bake_cache_dir, memory=False)
-        self.result = pipeline.bake(self.extraction.scene, self.settings, progress, cache=store)
+        try:
+            executor = make_executor(self.settings.threads, self.scheduler)
+        except DaskUnavailable as e:
+            raise BakeError(str(e)) from e
+        with executor:
+            self.result = pipeline.bake(self.extraction.scene, self.settings, progress, executor, cache=store)
         store.prune()
         self.warnings += store.warnings  # e.g. a full cache folder: the bake went on without it
 

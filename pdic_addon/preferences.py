@@ -1,4 +1,4 @@
-"""Add-on preferences (Edit > Preferences > Add-ons > PDIC): thread count and cache folder.
+"""Add-on preferences (Edit > Preferences > Add-ons > PDIC): thread count, cache folder, Dask scheduler.
 
 These are per-user, per-machine choices, so they live in the preferences,
 not in the .blend. The preferences class must be registered under the
@@ -13,6 +13,7 @@ defaults (all cores, the extension's user folder).
 """
 from __future__ import annotations
 
+import importlib.util
 import os
 import tempfile
 from pathlib import Path
@@ -37,6 +38,11 @@ class PDIC_AddonPreferences(bpy.types.AddonPreferences):
         name="Cache Folder", default="", subtype="DIR_PATH",
         description="Folder for data reused between bakes (UV unwraps keyed on the mesh, the records of "
                     "bakes of unsaved files). Empty = the extension's user folder")
+    scheduler: StringProperty(
+        name="Dask Scheduler", default="",
+        description="Run the heavy stages on a Dask cluster: tcp://host:port of a running 'dask scheduler', "
+                    "or local:N for N worker processes on this machine. Empty = threads on this machine. "
+                    "Needs dask and distributed in Blender's Python; light maps are the same either way")
 
     def draw(self, context):
         draw_preferences(self.layout, self)
@@ -48,6 +54,15 @@ def draw_preferences(layout, prefs) -> None:
     layout.prop(prefs, "threads")
     layout.prop(prefs, "cache_folder")
     layout.label(text=f"In use: {cache_dir(prefs)}", icon="FILE_FOLDER")
+    layout.prop(prefs, "scheduler")
+    if prefs.scheduler.strip() and not dask_installed():
+        from ..core.dask_executor import install_hint
+
+        layout.label(text=f"Dask is not installed: {install_hint()}", icon="ERROR")
+
+
+def dask_installed() -> bool:
+    return importlib.util.find_spec("distributed") is not None
 
 
 def addon_preferences(context=None):
@@ -62,6 +77,12 @@ def threads(prefs=None) -> int:
     """Worker threads for the executor: the preference, 0 (= all cores) without one."""
     prefs = prefs if prefs is not None else addon_preferences()
     return int(prefs.threads) if prefs is not None else 0
+
+
+def scheduler(prefs=None) -> str:
+    """The Dask scheduler address of the preferences, "" (the thread pool) without one."""
+    prefs = prefs if prefs is not None else addon_preferences()
+    return prefs.scheduler.strip() if prefs is not None else ""
 
 
 def default_cache_dir() -> Path:

@@ -510,7 +510,7 @@ def test_preferences_draw_threads_and_the_cache_folder_in_use(addon, tmp_path):
     layout = RecordingLayout()
     addon.cache_folder = str(tmp_path)
     preferences.draw_preferences(layout, addon)
-    assert layout.props() == ["threads", "cache_folder"]
+    assert layout.props() == ["threads", "cache_folder", "scheduler"]
     assert layout.labels() == [f"In use: {tmp_path}"]
 
 
