@@ -1,7 +1,8 @@
 """Photon density estimation for pass 2: R_k (Figure 3) and the Epanechnikov E_k (section 3.2).
 
 :class:`PhotonDensity` holds the kd-tree over an immutable :class:`~core.photons.PhotonMap` and
-answers the two queries of one record creation. It holds nothing computed by later passes.
+answers the two queries of record creation, batched over records. It holds nothing computed by
+later passes.
 """
 from __future__ import annotations
 

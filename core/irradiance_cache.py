@@ -16,6 +16,19 @@ Algorithm 1, as implemented::
         create record k = (p_k, n_k, E_k, R_k)
         for each candidate c' in the zone: w_sum[c'] += w_k(c'); E_sum[c'] += w_k(c') E_k
 
+**Blocks.** The loop runs over blocks of _BLOCK uncovered candidates, taken in the seeded
+order, each step batched over the block (one kd-tree query for all R_k, one ray cast for all
+walls, one density estimate, one w_sum update). Within a block, candidate i gets a record
+unless an earlier picked candidate's record accepts it (Equation 2 with that record's R_k
+clamped against the records of earlier blocks): the sequential walk's outcome, except that
+the sequential walk would also clamp R_j against the block's earlier records and consult
+walls, both of which only shrink zones. Those are applied after the pick (R_k clamped in
+block order, walls cast); candidates they leave uncovered are walked again as the next
+block, so no candidate ends with w_sum < 1/a and no record's zone covers the centre of a
+record placed after it, as in the sequential walk. The records can differ from it where a
+clamped or walled zone would have let a later block candidate cover others first
+(tests/test_block_walk.py holds the counts to the sequential walk's).
+
 **Threshold.** The paper writes both ``w_sum < 1/a`` (Algorithm 1) and
 ``w_sum < a`` (text). We use ``w_sum < 1/a``: with Equation 2 a record only
 contributes where its weight exceeds 1/a, so ``w_sum >= 1/a`` holds exactly
