@@ -16,7 +16,8 @@ Algorithm 1, as implemented::
         create record k = (p_k, n_k, E_k, R_k)
         for each candidate c' in the zone: w_sum[c'] += w_k(c'); E_sum[c'] += w_k(c') E_k
 
-**Blocks.** The loop runs over blocks of _BLOCK uncovered candidates, taken in the seeded
+**Blocks.** The loop runs over blocks of up to _BLOCK uncovered candidates (fewer where zones
+hold many photons, so a block's zone pairs stay near _ZONE_PAIRS), taken in the seeded
 order, each step batched over the block (one kd-tree query for all R_k, one ray cast for all
 walls, one density estimate, one w_sum update). Within a block, candidate i gets a record
 unless an earlier picked candidate's record accepts it (Equation 2 with that record's R_k
@@ -64,6 +65,9 @@ from .ward import accepted, ward_weight
 
 # Uncovered candidates handled together (one batched kd-tree query, ray cast and density estimate).
 _BLOCK = 2048
+# Zone photons (record, photon pairs) a block aims at: ~400 bytes each in flight, so ~100 MB
+# (4M photons in a small box hold ~10k per zone: a full block would need GBs).
+_ZONE_PAIRS = 262_144
 
 
 @dataclass
@@ -206,9 +210,9 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
     clamp = _NeighbourClamp(existing, params.neighbour_clamp)
     cand_tree = None if candidate_is_photon else cKDTree(cand_p)
     order = rng.permutation(len(cand_p))
-    start = 0
+    start, size = 0, 32  # the first block is small: it measures how many photons a zone holds
     while start < len(order):
-        block, start = _next_block(order, start, w_sum < threshold)
+        block, start = _next_block(order, start, w_sum < threshold, size)
         stats.candidates_visited += len(block)
         while len(block):  # records placed in a block may leave some of its candidates uncovered
             R_k = _radii(density, cand_p[block], cand_n[block], params, clamp)
@@ -224,6 +228,8 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
             E_sum[picked[short]] += (threshold - w_sum[picked[short]])[:, None] * new.E[short]
             w_sum[picked[short]] = threshold
             records.add(new)
+            pairs = max(len(members), sum(map(len, new.zones)))
+            size = int(np.clip(_ZONE_PAIRS * len(picked) / max(pairs, 1), 16, _BLOCK))
             clamp.add(new.p, new.R)
             block = block[w_sum[block] < threshold]
         if progress is not None:
@@ -241,13 +247,13 @@ def _accumulate(w_sum: np.ndarray, E_sum: np.ndarray, members: np.ndarray, w: np
         np.add.at(E_sum[:, channel], members, w * E_k[:, channel])
 
 
-def _next_block(order: np.ndarray, start: int, uncovered: np.ndarray) -> tuple[np.ndarray, int]:
-    """The next _BLOCK uncovered candidates of ``order`` from ``start`` (fewer at its end), and where to go on."""
+def _next_block(order: np.ndarray, start: int, uncovered: np.ndarray, size: int) -> tuple[np.ndarray, int]:
+    """The next ``size`` uncovered candidates of ``order`` from ``start`` (fewer at its end), and where to go on."""
     found, count = [], 0
-    while start < len(order) and count < _BLOCK:
-        chunk = order[start:start + 4 * _BLOCK]
-        at = np.flatnonzero(uncovered[chunk])[:_BLOCK - count]
-        if len(at) == _BLOCK - count:
+    while start < len(order) and count < size:
+        chunk = order[start:start + 4 * size]
+        at = np.flatnonzero(uncovered[chunk])[:size - count]
+        if len(at) == size - count:
             start += int(at[-1]) + 1
         else:
             start += len(chunk)
