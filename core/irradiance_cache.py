@@ -212,7 +212,7 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
     order = rng.permutation(len(cand_p))
     start, size = 0, 32  # the first block is small: it measures how many photons a zone holds
     while start < len(order):
-        block, start = _next_block(order, start, w_sum < threshold, size)
+        block, start = _next_block(order, start, w_sum, threshold, size)
         stats.candidates_visited += len(block)
         while len(block):  # records placed in a block may leave some of its candidates uncovered
             R_k = _radii(density, cand_p[block], cand_n[block], params, clamp)
@@ -247,12 +247,14 @@ def _accumulate(w_sum: np.ndarray, E_sum: np.ndarray, members: np.ndarray, w: np
         np.add.at(E_sum[:, channel], members, w * E_k[:, channel])
 
 
-def _next_block(order: np.ndarray, start: int, uncovered: np.ndarray, size: int) -> tuple[np.ndarray, int]:
-    """The next ``size`` uncovered candidates of ``order`` from ``start`` (fewer at its end), and where to go on."""
+def _next_block(order: np.ndarray, start: int, w_sum: np.ndarray, threshold: float, size: int
+                ) -> tuple[np.ndarray, int]:
+    """The next ``size`` candidates of ``order`` from ``start`` with w_sum < threshold (fewer at its end),
+    and where to go on. Only the scanned part of ``order`` is read (blocks can be a few dozen candidates)."""
     found, count = [], 0
     while start < len(order) and count < size:
         chunk = order[start:start + 4 * size]
-        at = np.flatnonzero(uncovered[chunk])[:size - count]
+        at = np.flatnonzero(w_sum[chunk] < threshold)[:size - count]
         if len(at) == size - count:
             start += int(at[-1]) + 1
         else:
