@@ -13,32 +13,42 @@ from __future__ import annotations
 import numpy as np
 
 from .constants import COVERAGE_ANGLES, COVERAGE_FLOOR, COVERAGE_LIFT, COVERAGE_RINGS, SAME_SURFACE_COS, SECTOR_OFFSET
-from .record_walls import has_walls, past_walls
+from .record_walls import beyond_wall
 from .sampling import orthonormal_basis
 
 
 def surface_coverage(caster, p_k: np.ndarray, n_k: np.ndarray, radius: float, wall: np.ndarray | None) -> float:
-    """Share of the Epanechnikov kernel's mass over the disc of ``radius`` that lies on the record's surface.
+    """:func:`surface_coverages` for one record (p_k, n_k (3,), wall (S,) or None)."""
+    return float(surface_coverages(caster, p_k[None], n_k[None], np.array([radius], np.float64),
+                                   None if wall is None else np.asarray(wall)[None])[0])
 
-    Probe points over the disc (equal-area rings, COVERAGE_RINGS x COVERAGE_ANGLES) each cast a
-    short ray down onto the tangent plane from just above it; a point counts if it finds surface
-    facing like n_k there and is not past a wall. Returns a value in [COVERAGE_FLOOR, 1].
+
+def surface_coverages(caster, p_k: np.ndarray, n_k: np.ndarray, radius: np.ndarray,
+                      wall: np.ndarray | None) -> np.ndarray:
+    """(B,) share of the Epanechnikov kernel's mass over each record's disc that lies on its surface.
+
+    p_k, n_k : (B, 3) records; radius : (B,) disc radii a R_k; wall : (B, S) float32 or None.
+    Probe points over each disc (equal-area rings, COVERAGE_RINGS x COVERAGE_ANGLES) cast a
+    short ray down onto the tangent plane from just above it, all in one batch; a point counts
+    if it finds surface facing like n_k there and is not past a wall. Values in [COVERAGE_FLOOR, 1].
     """
-    u, phi = _COVERAGE_U, _COVERAGE_PHI
-    t1, t2 = orthonormal_basis(n_k[None])
-    offset = (u * radius)[:, None] * (np.cos(phi)[:, None] * t1 + np.sin(phi)[:, None] * t2)
-    lift = COVERAGE_LIFT * radius
-    m = len(u)
-    origin = p_k + offset + lift * n_k
-    down = np.broadcast_to(-n_k, (m, 3))
-    hits = caster.intersect(origin, down, t_max=np.full(m, lift + radius))
+    B, m = len(p_k), PROBES
+    u, phi = np.tile(_COVERAGE_U, B), np.tile(_COVERAGE_PHI, B)
+    rec = np.repeat(np.arange(B), m)
+    t1, t2 = orthonormal_basis(n_k)
+    n_r = n_k[rec]
+    offset = (u * radius[rec])[:, None] * (np.cos(phi)[:, None] * t1[rec] + np.sin(phi)[:, None] * t2[rec])
+    lift = COVERAGE_LIFT * radius[rec]
+    hits = caster.intersect(p_k[rec] + offset + lift[:, None] * n_r, -n_r, t_max=lift + radius[rec])
     present = hits.hit.copy()
     if present.any():
         face_n = caster.face_normals[hits.triangle[present]]
-        present[present] = face_n @ n_k >= SAME_SURFACE_COS
-    if has_walls(wall):
-        present &= ~past_walls(wall, offset, n_k)
-    return float(max(np.sum(_COVERAGE_KERNEL * present) / np.sum(_COVERAGE_KERNEL), COVERAGE_FLOOR))
+        present[present] = np.einsum("ij,ij->i", face_n, n_r[present]) >= SAME_SURFACE_COS
+    if wall is not None:
+        walled = np.flatnonzero(present & np.isfinite(wall).any(axis=1)[rec])
+        present[walled] = ~beyond_wall(wall[rec[walled]], offset[walled], n_r[walled])
+    share = (present.reshape(B, m) @ _COVERAGE_KERNEL) / np.sum(_COVERAGE_KERNEL)
+    return np.maximum(share, COVERAGE_FLOOR)
 
 
 PROBES = COVERAGE_RINGS * COVERAGE_ANGLES

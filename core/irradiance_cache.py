@@ -16,6 +16,20 @@ Algorithm 1, as implemented::
         create record k = (p_k, n_k, E_k, R_k)
         for each candidate c' in the zone: w_sum[c'] += w_k(c'); E_sum[c'] += w_k(c') E_k
 
+**Blocks.** The loop runs over blocks of up to _BLOCK uncovered candidates (fewer where zones
+hold many photons, so a block's zone pairs stay near _ZONE_PAIRS), taken in the seeded
+order, each step batched over the block (one kd-tree query for all R_k, one ray cast for all
+walls, one density estimate, one w_sum update). Within a block, candidate i gets a record
+unless an earlier picked candidate's record accepts it (Equation 2 with that record's R_k
+clamped against the records of earlier blocks): the sequential walk's outcome, except that
+the sequential walk would also clamp R_j against the block's earlier records and consult
+walls, both of which only shrink zones. Those are applied after the pick (R_k clamped in
+block order, walls cast); candidates they leave uncovered are walked again as the next
+block, so no candidate ends with w_sum < 1/a and no record's zone covers the centre of a
+record placed after it, as in the sequential walk. The records can differ from it where a
+clamped or walled zone would have let a later block candidate cover others first
+(tests/test_block_walk.py holds the counts to the sequential walk's).
+
 **Threshold.** The paper writes both ``w_sum < 1/a`` (Algorithm 1) and
 ``w_sum < a`` (text). We use ``w_sum < 1/a``: with Equation 2 a record only
 contributes where its weight exceeds 1/a, so ``w_sum >= 1/a`` holds exactly
@@ -43,17 +57,17 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .constants import COVERAGE_ANGLES, COVERAGE_RINGS, STREAM_RECORD_ORDER, WALL_RAYS
-from .coverage import surface_coverage
-from .density import PhotonDensity
+from .coverage import surface_coverages
+from .density import PhotonDensity, ball_pairs
 from .photons import PhotonLighting
-from .record_walls import open_walls, past_walls, wall_distances
+from .record_walls import beyond_wall, open_walls, wall_distances
 from .ward import accepted, ward_weight
 
-# Records created before the record kd-tree is rebuilt (neighbour clamping looks
-# at the tree plus this many recent records by brute force).
-_REBUILD_EVERY = 512
-# A candidate block scanned at once when looking for uncovered candidates.
-_BLOCK = 4096
+# Uncovered candidates handled together (one batched kd-tree query, ray cast and density estimate).
+_BLOCK = 2048
+# Zone photons (record, photon pairs) a block aims at: ~400 bytes each in flight, so ~100 MB
+# (4M photons in a small box hold ~10k per zone: a full block would need GBs).
+_ZONE_PAIRS = 262_144
 
 
 @dataclass
@@ -179,7 +193,7 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
                   E_sum: np.ndarray, params: CacheParameters, rng: np.random.Generator,
                   candidate_is_photon: bool, progress=None, existing: IrradianceCache | None = None,
                   caster=None) -> tuple[IrradianceCache, Zones, CacheBuildStats]:
-    """The record-placement loop of Algorithm 1 over a generic candidate set.
+    """The record-placement loop of Algorithm 1 over a generic candidate set, in blocks.
 
     cand_p, cand_n : (c, 3) float64 candidate positions and normals.
     w_sum, E_sum : (c,) and (c, 3) running sums, updated in place.
@@ -196,44 +210,107 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
     clamp = _NeighbourClamp(existing, params.neighbour_clamp)
     cand_tree = None if candidate_is_photon else cKDTree(cand_p)
     order = rng.permutation(len(cand_p))
-    for b0 in range(0, len(order), _BLOCK):
-        block = order[b0:b0 + _BLOCK]
-        for c in block[w_sum[block] < threshold]:
-            stats.candidates_visited += 1
-            if w_sum[c] >= threshold:  # covered by a record created earlier in this block
-                continue
-            p_k, n_k = cand_p[c], cand_n[c]
-            R_k, wall, E_k, used, zone, members, w_members = _create_record(
-                density, p_k, n_k, params, clamp, caster, cand_tree, cand_p, cand_n, candidate_is_photon, stats)
-            w_sum[members] += w_members
-            E_sum[members] += w_members[:, None] * E_k
-            # The candidate is covered by its own record even if Equation 2 rounding dropped it.
-            if w_sum[c] < threshold:
-                E_sum[c] += (threshold - w_sum[c]) * E_k
-                w_sum[c] = threshold
-            records.add(p_k, n_k, E_k, R_k, used, wall, zone)
-            clamp.add(p_k, R_k)
+    start, size = 0, 32  # the first block is small: it measures how many photons a zone holds
+    while start < len(order):
+        block, start = _next_block(order, start, w_sum, threshold, size)
+        stats.candidates_visited += len(block)
+        while len(block):  # records placed in a block may leave some of its candidates uncovered
+            R_k = _radii(density, cand_p[block], cand_n[block], params, clamp)
+            walked = _walk(cand_p[block], cand_n[block], R_k, params.a)
+            picked = block[walked]
+            R_k = clamp.within(cand_p[picked], R_k[walked])
+            new, members, w_members, owner = _create_records(
+                density, cand_p[picked], cand_n[picked], R_k, params, caster, cand_tree, cand_p, cand_n,
+                candidate_is_photon, stats)
+            _accumulate(w_sum, E_sum, members, w_members, new.E[owner])  # Algorithm 1's last line
+            # A candidate is covered by its own record even if Equation 2 rounding dropped it.
+            short = w_sum[picked] < threshold
+            E_sum[picked[short]] += (threshold - w_sum[picked[short]])[:, None] * new.E[short]
+            w_sum[picked[short]] = threshold
+            records.add(new)
+            pairs = max(len(members), sum(map(len, new.zones)))
+            size = int(np.clip(_ZONE_PAIRS * len(picked) / max(pairs, 1), 16, _BLOCK))
+            clamp.add(new.p, new.R)
+            block = block[w_sum[block] < threshold]
         if progress is not None:
-            progress.update(min(1.0, (b0 + len(block)) / max(len(order), 1)))
+            progress.update(min(1.0, start / max(len(order), 1)))
     stats.records = len(records)
     stats.kd_queries += density.queries
     return records.cache(hole=not candidate_is_photon), Zones(records.zones), stats
 
 
-def _create_record(density, p_k, n_k, params: CacheParameters, clamp, caster, cand_tree, cand_p, cand_n,
-                   candidate_is_photon: bool, stats: CacheBuildStats):
-    """One record of Algorithm 1 at candidate (p_k, n_k): R_k, walls, E_k and the candidates it covers.
+def _accumulate(w_sum: np.ndarray, E_sum: np.ndarray, members: np.ndarray, w: np.ndarray, E_k: np.ndarray):
+    """w_sum[c] += w, E_sum[c] += w E_k over (m,) pairs (candidate c, weight w, E_k (m, 3)), in place."""
+    # bincount per channel: np.add.at was 2x slower here (Cornell Final pass 2, 1.8M photons).
+    c = len(w_sum)
+    w_sum += np.bincount(members, weights=w, minlength=c)
+    for channel in range(3):
+        E_sum[:, channel] += np.bincount(members, weights=w * E_k[:, channel], minlength=c)
 
-    Returns (R_k, wall (S,) or None, E_k (3,), photons used, zone photons, covered candidates, their w).
+
+def _next_block(order: np.ndarray, start: int, w_sum: np.ndarray, threshold: float, size: int
+                ) -> tuple[np.ndarray, int]:
+    """The next ``size`` candidates of ``order`` from ``start`` with w_sum < threshold (fewer at its end),
+    and where to go on. Only the scanned part of ``order`` is read (blocks can be a few dozen candidates)."""
+    found, count = [], 0
+    while start < len(order) and count < size:
+        chunk = order[start:start + 4 * size]
+        at = np.flatnonzero(w_sum[chunk] < threshold)[:size - count]
+        if len(at) == size - count:
+            start += int(at[-1]) + 1
+        else:
+            start += len(chunk)
+        found.append(chunk[at])
+        count += len(at)
+    return (np.concatenate(found) if found else np.zeros(0, np.int64)), start
+
+
+def _radii(density: PhotonDensity, p: np.ndarray, n: np.ndarray, params: CacheParameters,
+           clamp: "_NeighbourClamp") -> np.ndarray:
+    """(B,) R_k at B candidates: Figure 3, kept in [R_min, R_max], clamped against the records so far."""
+    R_k = density.harmonic_mean_distances(p, n, params.r_nearest, params.R_max)
+    return clamp.clamp(p, np.clip(R_k, params.R_min, params.R_max))
+
+
+def _walk(p: np.ndarray, n: np.ndarray, R_k: np.ndarray, a: float) -> np.ndarray:
+    """Positions of the candidates (B, 3) the sequential walk over them would place records at.
+
+    Candidate i gets a record unless the record of an earlier picked candidate j accepts it
+    (Equation 2 with R_j). Resolved in rounds, each deciding every candidate whose earlier
+    coverers are decided; the result is the sequential walk's, rounds ~ the longest chain.
     """
-    a = params.a
-    R_k = density.harmonic_mean_distance(p_k, n_k, params.r_nearest, params.R_max)
-    R_k = min(max(R_k, params.R_min), params.R_max)
-    R_k = clamp.clamp(p_k, R_k)
+    lengths, i = ball_pairs(cKDTree(p), p, a * R_k)
+    j = np.repeat(np.arange(len(p)), lengths)
+    keep = i > j
+    j, i = j[keep], i[keep]
+    keep = accepted(ward_weight(p[i], n[i], p[j], n[j], R_k[j]), a, p[i], n[i], p[j], n[j], R_k[j])
+    j, i = j[keep], i[keep]
+    state = np.zeros(len(p), np.int8)  # 0 undecided, 1 record, 2 covered by an earlier record
+    while len(i):
+        undecided = state == 0
+        waiting = np.zeros(len(p), bool)
+        waiting[i[state[j] != 2]] = True  # an earlier coverer is undecided or a record
+        covered = np.zeros(len(p), bool)
+        covered[i[state[j] == 1]] = True
+        state[undecided & covered] = 2
+        state[undecided & ~waiting] = 1
+        live = state[i] == 0
+        j, i = j[live], i[live]
+    state[state == 0] = 1
+    return np.flatnonzero(state == 1)
+
+
+def _create_records(density, p_k, n_k, R_k, params: CacheParameters, caster, cand_tree, cand_p, cand_n,
+                    candidate_is_photon: bool, stats: CacheBuildStats):
+    """B records of Algorithm 1 at candidates (p_k, n_k (B, 3), R_k (B,)): walls, E_k and what they cover.
+
+    Returns (the records as a :class:`_Chunk`, covered candidates (m,), their w (m,), their record (m,)).
+    """
+    a, B = params.a, len(p_k)
     wall = None
     if caster is not None and params.wall_sectors:  # deviation: wall-sectors, docs/DEVIATIONS.md
-        wall = wall_distances(caster, p_k[None], n_k[None], np.array([a * R_k]))[0]
-        stats.wall_rays += WALL_RAYS
+        wall = wall_distances(caster, p_k, n_k, a * R_k)
+        stats.wall_rays += WALL_RAYS * B
     # Walls limit where a record is *used* (interpolation, hole coverage). A record at a photon
     # estimates E_k and lends virtual rays from its whole disc: cutting those discs at every corner
     # of a room removes most of the photons a corner record has, which made Preview noisier and
@@ -244,47 +321,60 @@ def _create_record(density, p_k, n_k, params: CacheParameters, clamp, caster, ca
     est_caster = caster if not candidate_is_photon and params.record_visibility else None  # deviation: record-visibility
     coverage = None
     if caster is not None and params.kernel_coverage:  # deviation: surface-coverage, docs/DEVIATIONS.md
-        coverage = surface_coverage(caster, p_k, n_k, a * R_k, est_wall)
-        stats.wall_rays += COVERAGE_RINGS * COVERAGE_ANGLES
-    zone, w, E_k, used = density.record(p_k, n_k, R_k, a, est_wall, coverage, est_caster)
+        coverage = surface_coverages(caster, p_k, n_k, a * R_k, est_wall)
+        stats.wall_rays += COVERAGE_RINGS * COVERAGE_ANGLES * B
+    zone = density.records(p_k, n_k, R_k, a, est_wall, coverage, est_caster)
+    chunk = _Chunk(p_k, n_k, zone.E_k, R_k, zone.used, wall, np.split(zone.photons, np.cumsum(zone.lengths)[:-1]))
     if candidate_is_photon:
-        return R_k, wall, E_k, used, zone, zone, w
-    members = np.asarray(cand_tree.query_ball_point(p_k, a * R_k), dtype=np.int64)
-    stats.kd_queries += 1
+        return chunk, zone.photons, zone.w, np.repeat(np.arange(B), zone.lengths)
+    lengths, members = ball_pairs(cand_tree, p_k, a * R_k)
+    owner = np.repeat(np.arange(B), lengths)
+    stats.kd_queries += B
     P, N = cand_p[members], cand_n[members]
-    w_members = ward_weight(P, N, p_k, n_k, R_k)
-    ok = accepted(w_members, a, P, N, p_k, n_k, R_k)
+    w = ward_weight(P, N, p_k[owner], n_k[owner], R_k[owner])
+    ok = accepted(w, a, P, N, p_k[owner], n_k[owner], R_k[owner])
     if wall is not None:
-        ok &= ~past_walls(wall, P - p_k, n_k)
-    return R_k, wall, E_k, used, zone, members[ok], w_members[ok]
+        ok[ok] = ~beyond_wall(wall[owner[ok]], P[ok] - p_k[owner[ok]], n_k[owner[ok]])
+    return chunk, members[ok], w[ok], owner[ok]
+
+
+@dataclass
+class _Chunk:
+    """B records placed together: p, n, E (B, 3), R (B,), used (B,), wall (B, S) or None, zones (B arrays)."""
+
+    p: np.ndarray
+    n: np.ndarray
+    E: np.ndarray
+    R: np.ndarray
+    used: np.ndarray
+    wall: np.ndarray | None
+    zones: list
 
 
 class _Records:
-    """Records as they are placed, assembled into an :class:`IrradianceCache` at the end."""
+    """Records as they are placed, chunk by chunk, assembled into an :class:`IrradianceCache` at the end."""
 
     def __init__(self):
-        self.p, self.n, self.E, self.R, self.used, self.wall, self.zones = [], [], [], [], [], [], []
+        self.chunks, self.zones = [], []
 
     def __len__(self) -> int:
-        return len(self.p)
+        return len(self.zones)
 
-    def add(self, p_k, n_k, E_k, R_k, used, wall, zone):
-        self.p.append(p_k)
-        self.n.append(n_k)
-        self.E.append(E_k)
-        self.R.append(R_k)
-        self.used.append(used)
-        self.wall.append(wall if wall is not None else np.full(WALL_RAYS, np.inf, np.float32))
-        self.zones.append(zone.astype(np.int32))
+    def add(self, chunk: _Chunk):
+        self.chunks.append(chunk)
+        self.zones.extend(z.astype(np.int32) for z in chunk.zones)
 
     def cache(self, hole: bool) -> IrradianceCache:
-        K = len(self.p)
+        K = len(self)
+        join = lambda name, shape: (np.concatenate([getattr(c, name) for c in self.chunks]).astype(  # noqa: E731
+            np.float64).reshape(shape) if self.chunks else np.zeros(shape))
+        walls = [c.wall if c.wall is not None else open_walls(len(c.p)) for c in self.chunks]
         return IrradianceCache(
-            p=np.array(self.p, np.float64).reshape(K, 3), n=np.array(self.n, np.float64).reshape(K, 3),
-            E=np.array(self.E, np.float64).reshape(K, 3), R=np.array(self.R, np.float64),
+            p=join("p", (K, 3)), n=join("n", (K, 3)), E=join("E", (K, 3)), R=join("R", (K,)),
             grad_r=np.zeros((K, 3, 3)), grad_t=np.zeros((K, 3, 3)),
-            photons_used=np.array(self.used, np.int32), hole=np.full(K, hole),
-            refined=np.zeros(K, bool), wall=np.array(self.wall, np.float32).reshape(K, WALL_RAYS))
+            photons_used=join("used", (K,)).astype(np.int32), hole=np.full(K, hole),
+            refined=np.zeros(K, bool),
+            wall=np.concatenate(walls).astype(np.float32) if walls else open_walls(0))
 
 
 # --------------------------------------------------------------------------- neighbour clamping [KBPZ06]
@@ -308,35 +398,49 @@ def neighbour_clamp(p: np.ndarray, R: np.ndarray) -> np.ndarray:
 
 
 class _NeighbourClamp:
-    """R_k <= R_j + |p_k - p_j| against records placed so far (kd-tree + recent list)."""
+    """R_k <= R_j + |p_k - p_j| against the records placed so far ([KBPZ06]).
+
+    The records are kept in kd-trees of doubling sizes (a new chunk merges with the last tree
+    while that is no more than twice as large), so each record is re-indexed O(log K) times.
+    """
 
     def __init__(self, existing: IrradianceCache | None, enabled: bool = True):
         self.enabled = enabled
-        self.tree_p = existing.p.copy() if existing is not None and len(existing) else np.zeros((0, 3))
-        self.tree_R = existing.R.copy() if existing is not None and len(existing) else np.zeros(0)
-        self.tree = cKDTree(self.tree_p) if len(self.tree_p) and enabled else None
-        self.recent_p, self.recent_R = [], []
+        self.levels = []  # (p (k, 3), R (k,), tree)
+        if enabled and existing is not None and len(existing):
+            self.add(existing.p, existing.R)
 
-    def clamp(self, p_k: np.ndarray, R_k: float) -> float:
+    def clamp(self, p: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """(B,) R clamped against every record so far (p (B, 3), R (B,))."""
+        R = np.array(R, np.float64)
         if not self.enabled:
-            return R_k
-        if self.tree is not None:
-            idx = self.tree.query_ball_point(p_k, R_k)
-            if idx:
-                d = np.linalg.norm(self.tree_p[idx] - p_k, axis=1)
-                R_k = min(R_k, float(np.min(self.tree_R[idx] + d)))
-        if self.recent_p:
-            d = np.linalg.norm(np.asarray(self.recent_p) - p_k, axis=1)
-            R_k = min(R_k, float(np.min(np.asarray(self.recent_R) + d)))
-        return R_k
+            return R
+        for p_j, R_j, tree in self.levels:
+            lengths, j = ball_pairs(tree, p, R)
+            k = np.repeat(np.arange(len(p)), lengths)
+            np.minimum.at(R, k, R_j[j] + np.linalg.norm(p_j[j] - p[k], axis=1))
+        return R
 
-    def add(self, p_k: np.ndarray, R_k: float):
-        if not self.enabled:
+    def within(self, p: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """(B,) R of B records placed in this order clamped against the earlier ones among them.
+
+        R_k <- min(R_k, min_{j<k} R_j + |p_k - p_j|): by the triangle inequality this equals
+        clamping each record against the already clamped earlier ones, as a sequential walk does.
+        """
+        R = np.array(R, np.float64)
+        if not self.enabled or len(p) < 2:
+            return R
+        lengths, j = ball_pairs(cKDTree(p), p, R)
+        k = np.repeat(np.arange(len(p)), lengths)
+        earlier = j < k
+        k, j = k[earlier], j[earlier]
+        np.minimum.at(R, k, R[j] + np.linalg.norm(p[j] - p[k], axis=1))
+        return R
+
+    def add(self, p: np.ndarray, R: np.ndarray):
+        if not self.enabled or len(p) == 0:
             return
-        self.recent_p.append(p_k)
-        self.recent_R.append(R_k)
-        if len(self.recent_p) >= _REBUILD_EVERY:
-            self.tree_p = np.concatenate([self.tree_p, np.asarray(self.recent_p)])
-            self.tree_R = np.concatenate([self.tree_R, np.asarray(self.recent_R)])
-            self.tree = cKDTree(self.tree_p)
-            self.recent_p, self.recent_R = [], []
+        while self.levels and len(self.levels[-1][0]) <= 2 * len(p):
+            p_old, R_old, _ = self.levels.pop()
+            p, R = np.concatenate([p_old, p]), np.concatenate([R_old, R])
+        self.levels.append((p, R, cKDTree(p)))

@@ -28,17 +28,24 @@ def ward_weight(p: np.ndarray, n: np.ndarray, p_k: np.ndarray, n_k: np.ndarray, 
     p, n : (m, 3) query points and unit normals; p_k, n_k : (m, 3) records, or (3,) for
     one record against many points; R_k : (m,) or a scalar, > 0.
     """
-    d = np.linalg.norm(p - p_k, axis=-1)
-    cos = np.clip(np.einsum("...j,...j->...", n, n_k), -1.0, 1.0)
-    denominator = d / R_k + np.sqrt(1.0 - cos)
+    return weight_from(np.linalg.norm(p - p_k, axis=-1), np.einsum("...j,...j->...", n, n_k), R_k)
+
+
+def weight_from(d: np.ndarray, cos: np.ndarray, R_k: np.ndarray) -> np.ndarray:
+    """Equation 1 from its terms: distances d = |p - p_k| and cosines n . n_k, (m,) each."""
+    denominator = d / R_k + np.sqrt(1.0 - np.clip(cos, -1.0, 1.0))
     return 1.0 / np.maximum(denominator, DENOMINATOR_FLOOR)
 
 
 def accepted(w: np.ndarray, a: float, p: np.ndarray, n: np.ndarray, p_k: np.ndarray, n_k: np.ndarray,
              R_k: np.ndarray) -> np.ndarray:
     """Equation 2 plus Ward's in-front test: (m,) bool, may record k contribute at p?"""
-    in_front = np.einsum("...j,...j->...", p - p_k, 0.5 * (n + n_k)) < -IN_FRONT * R_k
-    return (w > 1.0 / a) & ~in_front
+    return accepted_from(w, a, np.einsum("...j,...j->...", p - p_k, n + n_k), R_k)
+
+
+def accepted_from(w: np.ndarray, a: float, lead: np.ndarray, R_k: np.ndarray) -> np.ndarray:
+    """:func:`accepted` from its terms: lead = (p - p_k) . (n + n_k), (m,)."""
+    return (w > 1.0 / a) & ~(0.5 * lead < -IN_FRONT * R_k)
 
 
 def record_estimate(E_k: np.ndarray, p: np.ndarray, n: np.ndarray, p_k: np.ndarray, n_k: np.ndarray,
