@@ -47,8 +47,9 @@ class PDIC_SceneSettings(bpy.types.PropertyGroup):
                                       "settings)")
     photons: IntProperty(name="Photons", default=DEFAULTS.photons, min=1000, soft_max=4_000_000,
                          description="Photons emitted, shared among lights by power (Custom quality). Typical 100k-4M")
-    max_bounces: IntProperty(name="Max Bounces", default=DEFAULTS.max_bounces, min=1, max=64,
-                             description="Diffuse bounces a photon may make (Custom quality). Typical 4-9")
+    max_bounces: IntProperty(name="Max Bounces", default=DEFAULTS.max_bounces, min=1, max=255,
+                             description="Safety limit on a photon's diffuse bounces (Custom quality); Russian "
+                                         "roulette ends paths first. Below ~16 it darkens bright, enclosed scenes")
     a: FloatProperty(name="Accuracy a", default=DEFAULTS.a, min=0.05, max=2.0, step=5, precision=2,
                      description="Ward's accuracy a: smaller = more cache records, fewer artefacts (Custom quality). "
                                  "Typical 0.2-0.5")
