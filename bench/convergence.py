@@ -80,7 +80,15 @@ def main(argv=None):
     ap.add_argument("--density-control", default="0")
     ap.add_argument("--photons", type=int, default=None)
     ap.add_argument("--figure5", action="store_true")
+    ap.add_argument("--kernel-coverage", choices=("default", "on", "off"), default="default",
+                    help="force E_k's surface-coverage kernel on or off at both qualities")
     args = ap.parse_args(argv)
+    if args.kernel_coverage != "default":
+        from dataclasses import replace
+
+        from pdic.core import pipeline
+        chosen, on = pipeline.cache_parameters, args.kernel_coverage == "on"
+        pipeline.cache_parameters = lambda *a: replace(chosen(*a), kernel_coverage=on)
     for name in args.scenes.split(","):
         scene, pair, noise = load(name)
         print(f"# {name}: reference noise {noise:.4f}", flush=True)

@@ -171,6 +171,7 @@ def draw_custom_settings(layout, props) -> None:
     col = layout.column(align=True)
     col.prop(props, "photons")
     col.prop(props, "max_bounces")
+    col.prop(props, "density_control")
     col = layout.column(align=True)
     col.prop(props, "a")
     col = layout.column(align=True)
