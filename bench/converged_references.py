@@ -40,9 +40,9 @@ REFERENCES = ROOT / "bench" / "references"
 SCENES = ROOT / "bench" / "results" / "converged"
 BOUNCES = 64
 """Cycles diffuse (and total) bounces: converged (Sponza warms up to 16 diffuse bounces)."""
-PLAN = {"cornell": dict(spp=4096, density=None), "sponza": dict(spp=512, density=4.0),
+PLAN = {"cornell": dict(spp=1024, density=None), "sponza": dict(spp=512, density=4.0),
         "occluded": dict(spp=2048, density=4.0)}
-"""Samples per bake of each pair (~15 min of CPU for Cornell) and texel density (texels/m)."""
+"""Samples per bake of each pair (Cornell: 2 x 1024 on a machine shared by six jobs) and texel density (texels/m)."""
 
 
 def seed_pair(objects, uv: str, sizes: dict, spp: int) -> tuple[list, float]:

@@ -30,7 +30,7 @@ from pdic.core.settings import preset  # noqa: E402
 
 REFERENCES = ROOT / "bench" / "references"
 SCENES = ROOT / "bench" / "results" / "converged"
-FILES = {"cornell": "cornell_point_64_8192_64_INDIRECT.npz", "occluded": "occluded_one_d4_2048x2_64_INDIRECT.npz",
+FILES = {"cornell": "cornell_point_64_2048_64_INDIRECT.npz", "occluded": "occluded_one_d4_2048x2_64_INDIRECT.npz",
          "sponza": "sponza_one_d4_512x2_64_INDIRECT.npz"}
 
 
