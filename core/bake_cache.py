@@ -15,7 +15,8 @@ kind            key
                 resolution; ``texel_samples``
 ``direct``      the raster key + light transport (see :func:`transport_key`) +
                 ``direct_samples``, ``seed``
-``photons``     light transport + ``photons``, photon bounces, ``seed``
+``photons``     light transport + ``photons``, photon bounces, ``seed``; with
+                ``density_control`` on, its n and the Algorithm 1 parameters
 ``cache``       the photons key + Algorithm 1 parameters (a, r_nearest, R_min,
                 R_max) + refinement settings (quality, hemisphere, reuse)
 ``indirect``    the cache key + the raster key + ``gradients``

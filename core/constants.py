@@ -28,6 +28,8 @@ STREAM_VALIDITY = 12
 """Texel validity rays, ``[seed, 12, target stream, chunk]``."""
 STREAM_REFINE_HOLES = 20
 """Pass 3 on hole records of round r: ``[seed, 20 + r, batch]``."""
+STREAM_DENSITY_CONTROL = 5
+"""Section 3.4 density control: which stored photons are discarded, ``[seed, 5]``."""
 STREAM_CHR99_SUBSAMPLE = 99
 """The [Chr99] comparator's choice of photons to precompute at, ``[seed, 99]``."""
 
@@ -83,6 +85,9 @@ COVERAGE_FLOOR = 0.05
 """The least kernel share a record is granted: at most 20x amplification of its photons."""
 
 # --------------------------------------------------------------------------- pass 2 density estimation
+DENSITY_RECEIVERS = 4
+"""Density control: a discarded photon's power is shared among up to this many nearest kept photons
+of its surface ([SW00] spreads it over the neighbours; 4 keeps the added noise local)."""
 R_OVERSAMPLE = 3
 """Neighbours fetched per wanted indirect photon when estimating R_k."""
 

@@ -29,6 +29,7 @@ from . import texels as texel_stage
 from .bake_cache import BakeCache, NoBakeCache, target_key, transport_key
 from .constants import R_MIN_FLOOR, STREAM_DIRECT
 from .density import PhotonDensity
+from .density_control import controlled_pass
 from .direct import shade_direct
 from .executor import Executor, Progress, default_workers
 from .hole_records import indirect_at_texels, interpolate_filling_holes  # noqa: F401  (re-exported)
@@ -264,15 +265,17 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
     the photons' lighting."""
     settings, store = run.settings, run.store
     photon_bounces = settings.max_bounces - 1 if settings.refine else settings.max_bounces
-    photon_key = store.key("photons", run.transport(), settings.photons, photon_bounces, settings.seed)
+    photon_key = store.key("photons", run.transport(), settings.photons, photon_bounces, settings.seed,
+                           *((settings.density_control, params) if settings.density_control else ()))
     cache_key = store.key("cache", photon_key, params, settings.refine, settings.hemisphere_theta,
                           settings.hemisphere_phi, settings.reuse_photon_paths, settings.deviations)
     passes: list = []  # (cache, photons, lighting) once computed or read, plus what holes read
 
     def passes_1_to_3():
         photons = store.memoise("photons", photon_key,
-                                lambda: trace_pass(run.scene, run.caster(), settings, photon_bounces, run.executor,
-                                                   run.progress, run.stats))
+                                lambda: controlled_pass(trace_pass(run.scene, run.caster(), settings, photon_bounces,
+                                                                   run.executor, run.progress, run.stats),
+                                                        params, settings, run.progress, run.stats))
         return build_cache(run, photons, params)
 
     def texels(t: TargetTexels):

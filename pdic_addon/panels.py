@@ -52,10 +52,10 @@ OVERLAPPING_STAGES = ("addon_compute", "addon_finish")
 
 # --------------------------------------------------------------------------- pure helpers
 def preset_summary(quality: str) -> str:
-    """One line saying what a preset does, e.g. ``250,000 photons, 6 bounces, a 0.40, 12x24 cells``."""
+    """One line saying what a preset does, e.g. ``250,000 photons, up to 64 bounces, a 0.40, 12x24 cells``."""
     s = core_settings.preset(quality)
     cells = f"{s.hemisphere_theta}x{s.hemisphere_phi} cells" if s.refine else "no refinement"
-    return f"{s.photons:,} photons, {s.max_bounces} bounces, a {s.a:.2f}, {cells}"
+    return f"{s.photons:,} photons, up to {s.max_bounces} bounces, a {s.a:.2f}, {cells}"
 
 
 def _count(value) -> str:
@@ -171,6 +171,7 @@ def draw_custom_settings(layout, props) -> None:
     col = layout.column(align=True)
     col.prop(props, "photons")
     col.prop(props, "max_bounces")
+    col.prop(props, "density_control")
     col = layout.column(align=True)
     col.prop(props, "a")
     col = layout.column(align=True)

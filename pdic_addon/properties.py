@@ -29,7 +29,7 @@ IMAGE_FORMAT_ITEMS = (
 BLEND_RELATIVE = {"PATH_SUPPORTS_BLEND_RELATIVE"} if bpy.app.version >= (5, 0, 0) else set()
 
 # BakeSettings fields a quality preset decides unless the quality is CUSTOM.
-PRESET_FIELDS = ("photons", "max_bounces", "a", "hemisphere_theta", "hemisphere_phi")
+PRESET_FIELDS = ("photons", "max_bounces", "density_control", "a", "hemisphere_theta", "hemisphere_phi")
 
 
 def _redraw_viewports(self, context):
@@ -47,8 +47,13 @@ class PDIC_SceneSettings(bpy.types.PropertyGroup):
                                       "settings)")
     photons: IntProperty(name="Photons", default=DEFAULTS.photons, min=1000, soft_max=4_000_000,
                          description="Photons emitted, shared among lights by power (Custom quality). Typical 100k-4M")
-    max_bounces: IntProperty(name="Max Bounces", default=DEFAULTS.max_bounces, min=1, max=64,
-                             description="Diffuse bounces a photon may make (Custom quality). Typical 4-9")
+    max_bounces: IntProperty(name="Max Bounces", default=DEFAULTS.max_bounces, min=1, max=255,
+                             description="Safety limit on a photon's diffuse bounces (Custom quality); Russian "
+                                         "roulette ends paths first. Below ~16 it darkens bright, enclosed scenes")
+    density_control: IntProperty(name="Density Control", default=DEFAULTS.density_control, min=0, soft_max=256,
+                                 description="Most photons wanted in a record's zone of influence (paper section "
+                                             "3.4, Custom quality); fewer are kept where records are large, their "
+                                             "power moved to neighbours. 0 = off. Typical 32-64")
     a: FloatProperty(name="Accuracy a", default=DEFAULTS.a, min=0.05, max=2.0, step=5, precision=2,
                      description="Ward's accuracy a: smaller = more cache records, fewer artefacts (Custom quality). "
                                  "Typical 0.2-0.5")

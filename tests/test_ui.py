@@ -205,7 +205,7 @@ def _values(group):
 def test_settings_survive_save_and_reload(addon, blender, tmp_path):
     build_scene(blender)
     props = blender.context.scene.pdic
-    changed = dict(quality="PREVIEW", photons=123_456, max_bounces=9, a=0.25, hemisphere_theta=7,
+    changed = dict(quality="PREVIEW", photons=123_456, max_bounces=9, density_control=48, a=0.25, hemisphere_theta=7,
                    hemisphere_phi=15, texel_density=12.5, default_resolution=64, atlas_size=1024, direct=False, indirect=True,
                    seed=42, output_folder="//maps/", image_format="EXR_FLOAT", show_records=True,
                    show_record_discs=True, record_point_size=7.0, last_stats='{"x": 1}',
@@ -398,7 +398,7 @@ def test_actions_show_progress_and_cancel_while_baking(addon):
 
 
 def test_preset_summary_states_the_preset_numbers():
-    assert panels.preset_summary("FINAL") == "1,000,000 photons, 6 bounces, a 0.40, 16x32 cells"
+    assert panels.preset_summary("FINAL") == "1,000,000 photons, up to 64 bounces, a 0.40, 16x32 cells"
     assert panels.preset_summary("PREVIEW").endswith("no refinement")
 
 

@@ -1,0 +1,135 @@
+"""Converged Cycles references: 64 diffuse bounces, sample clamping off, adaptive sampling off.
+
+    .venv/bin/python bench/converged_references.py [--only cornell,sponza,occluded]
+
+Each reference is a pair of Cycles INDIRECT bakes with seeds 1 and 2 (``spp`` samples each),
+so its own noise is known: rms(b1 - b2) / sqrt 2 per bake, and a comparison against the pair
+subtracts it (bench/run.py ``noise_corrected_error``). Written to bench/references/:
+
+- ``cornell_point_64_{2 spp}_64_INDIRECT.npz``: the Cornell sample blend's ``LightMap`` at 64^2
+  per object, the pair averaged (the format of tests/cycles_reference.py ``reference``), plus the
+  pair itself (``a_*``, ``b_*``) and ``noise`` (relative, of the average).
+- ``{scene}_one_d{density}_{spp}x2_64_INDIRECT.npz``: Sponza joined into one object, and the
+  occluded building (bench/scenes.py), in the add-on's ``PDIC_Lightmap`` at ``density`` texels/m:
+  ``a_*``, ``b_*``, ``cov_*``, ``seconds``, ``noise`` (relative, of one bake). The core scene the
+  add-on extracted (same UVs) is pickled to bench/results/converged/{scene}.pkl for PDIC bakes.
+"""
+from __future__ import annotations
+
+import argparse
+import pickle
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+import pdic_bootstrap  # noqa: E402
+
+pdic_bootstrap.load()
+import bpy  # noqa: E402
+
+from pdic import pdic_addon  # noqa: E402
+from pdic.bench import scenes as bench_scenes  # noqa: E402
+from pdic.core.settings import preset  # noqa: E402
+
+REFERENCES = ROOT / "bench" / "references"
+SCENES = ROOT / "bench" / "results" / "converged"
+BOUNCES = 64
+"""Cycles diffuse (and total) bounces: converged (Sponza warms up to 16 diffuse bounces)."""
+PLAN = {"cornell": dict(spp=1024, density=None), "sponza": dict(spp=512, density=4.0),
+        "occluded": dict(spp=2048, density=4.0)}
+"""Samples per bake of each pair (Cornell: 2 x 1024 on a machine shared by six jobs) and texel density (texels/m)."""
+
+
+def seed_pair(objects, uv: str, sizes: dict, spp: int) -> tuple[list, float]:
+    """Two Cycles INDIRECT bakes (seeds 1, 2) of ``objects`` ({name: (w, h)}); (pair, seconds)."""
+    from tests.cycles_reference import cycles_bake_full
+
+    by_size: dict = {}
+    for name, size in sizes.items():
+        by_size.setdefault(size, []).append(name)
+    named = {o.name: o for o in objects}
+    pair, t = [], time.perf_counter()
+    for seed in (1, 2):
+        images, coverage = {}, {}
+        for (w, h), names in by_size.items():
+            b = cycles_bake_full([named[n] for n in names], uv, w, h, {"INDIRECT"}, spp, seed=seed,
+                                 diffuse_bounces=BOUNCES, clamp_indirect=0.0)
+            images.update(b.images)
+            coverage.update(b.coverage)
+        pair.append(dict(images=images, coverage=coverage))
+    return pair, time.perf_counter() - t
+
+
+def pair_noise(pair) -> float:
+    """Relative RMS noise of one bake of the pair: rms(b1 - b2) / sqrt 2 / mean."""
+    a, b = pair
+    d = np.concatenate([(a["images"][n] - b["images"][n])[a["coverage"][n]].ravel() for n in a["images"]])
+    m = np.concatenate([(a["images"][n] + b["images"][n])[a["coverage"][n]].ravel() for n in a["images"]]).mean() / 2
+    return float(np.sqrt(np.mean(d ** 2) / 2.0) / max(m, 1e-30))
+
+
+def save_pair(path: Path, pair, seconds: float, averaged: bool) -> float:
+    noise = pair_noise(pair)
+    a, b = pair
+    arrays = {f"a_{n}": a["images"][n] for n in a["images"]}
+    arrays.update({f"b_{n}": b["images"][n] for n in b["images"]})
+    arrays.update({f"cov_{n}": a["coverage"][n] & b["coverage"][n] for n in a["images"]})
+    if averaged:  # tests/cycles_reference.py ``reference`` reads img_* as the reference
+        arrays.update({f"img_{n}": 0.5 * (a["images"][n] + b["images"][n]) for n in a["images"]})
+        noise /= np.sqrt(2.0)
+    REFERENCES.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(path, seconds=seconds, noise=noise, bounces=BOUNCES, **arrays)
+    print(f"{path.name}: {seconds:.0f} s, relative noise {noise:.4f}", flush=True)
+    return noise
+
+
+def cornell(spp: int) -> None:
+    objects = bench_scenes.load_cornell("cornell_point")
+    sizes = {o.name: (64, 64) for o in objects}
+    pair, seconds = seed_pair(objects, "LightMap", sizes, spp)
+    save_pair(REFERENCES / f"cornell_point_64_{2 * spp}_{BOUNCES}_INDIRECT.npz", pair, seconds, averaged=True)
+
+
+def join(objects: list) -> list:
+    """Join mesh objects into the first one (Sponza as imported into one object)."""
+    with bpy.context.temp_override(active_object=objects[0], selected_editable_objects=objects,
+                                   selected_objects=objects):
+        bpy.ops.object.join()
+    return [o for o in bpy.context.scene.objects if o.type == "MESH"]
+
+
+def one_object(name: str, spp: int, density: float) -> None:
+    objects = bench_scenes.load_sponza() if name == "sponza" else bench_scenes.load_occluded()
+    objects = join(objects)
+    settings = preset("FINAL", texel_density=density, min_resolution=32)
+    _, scene = bench_scenes.prepare(objects, settings, SCENES / "cache" / name)
+    SCENES.mkdir(parents=True, exist_ok=True)
+    (SCENES / f"{name}.pkl").write_bytes(pickle.dumps(scene))
+    from pdic.pdic_addon.uvmaps import LIGHTMAP_UV
+
+    sizes = {t.name: (t.width, t.height) for t in scene.targets}
+    print(name, "targets", sizes, "triangles", scene.geometry.count, flush=True)
+    pair, seconds = seed_pair(objects, LIGHTMAP_UV, sizes, spp)
+    save_pair(REFERENCES / f"{name}_one_d{density:g}_{spp}x2_{BOUNCES}_INDIRECT.npz", pair, seconds, averaged=False)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--only", default="cornell,sponza,occluded")
+    args = ap.parse_args(argv)
+    pdic_addon.register()
+    for name in [s.strip() for s in args.only.split(",") if s.strip()]:
+        plan = PLAN[name]
+        if name == "cornell":
+            cornell(plan["spp"])
+        else:
+            one_object(name, plan["spp"], plan["density"])
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,107 @@
+"""Indirect mean bias and error of PDIC against the converged Cycles references (64 bounces).
+
+    .venv/bin/python bench/convergence.py [--scenes cornell,occluded,sponza] [--quality FINAL]
+        [--bounces 6,64] [--density-control 0] [--photons N] [--figure5]
+
+Needs bench/converged_references.py's output (references in bench/references/, the one-object
+core scenes in bench/results/converged/). Per bake: bias = sum PDIC / sum reference - 1 over the
+texels both cover, the noise-corrected relative RMS error (bench/run.py), photons stored and
+the bake's CPU seconds (``threads=1``). ``--figure5`` runs bench/run.py's [Chr99]-vs-Preview
+comparison against the same references instead.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import pickle
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+from bench import run as bench_run  # noqa: E402  (loads pdic and bpy)
+
+from pdic.core.pipeline import bake  # noqa: E402
+from pdic.core.settings import preset  # noqa: E402
+
+REFERENCES = ROOT / "bench" / "references"
+SCENES = ROOT / "bench" / "results" / "converged"
+FILES = {"cornell": "cornell_point_64_2048_64_INDIRECT.npz", "occluded": "occluded_one_d4_2048x2_64_INDIRECT.npz",
+         "sponza": "sponza_one_d4_512x2_64_INDIRECT.npz"}
+
+
+def load(name: str):
+    """(core scene, reference pair as two dicts of images/coverage, the reference's noise)."""
+    data = np.load(REFERENCES / FILES[name])
+    names = [k[4:] for k in data if k.startswith("cov_")]
+    pair = [dict(images={n: data[f"{s}_{n}"] for n in names}, coverage={n: data[f"cov_{n}"] for n in names})
+            for s in ("a", "b")]
+    if name == "cornell":
+        scene = bench_run.cornell_scene()[1]
+    else:
+        scene = pickle.loads((SCENES / f"{name}.pkl").read_bytes())
+    return scene, pair, float(data["noise"])
+
+
+def bias(images: dict, covered: dict, pair) -> float:
+    """sum PDIC / sum reference - 1 over texels both cover, all channels."""
+    a, b = pair
+    mask = {n: a["coverage"][n] & covered[n] for n in a["images"]}
+    test = sum(float(images[n][mask[n]].sum()) for n in mask)
+    ref = sum(float((0.5 * (a["images"][n] + b["images"][n]))[mask[n]].sum()) for n in mask)
+    return test / max(ref, 1e-30) - 1.0
+
+
+def measure(name: str, scene, pair, quality: str, overrides: dict) -> dict:
+    settings = preset(quality, threads=1, **overrides)
+    t = time.process_time()
+    result = bake(scene, settings)
+    cpu = time.process_time() - t
+    c, s = result.stats["counters"], result.stats["seconds"]
+    row = dict(scene=name, quality=quality, **overrides, cpu_s=cpu,
+               bias=bias(result.indirect, result.centre_inside, pair),
+               error=bench_run.noise_corrected_error(result.indirect, result.centre_inside, pair),
+               photons_stored=c.get("photons_stored"), photon_bytes=c.get("photon_bytes"),
+               photons_before_control=c.get("photons_before_control"), records=c.get("records"),
+               hole_records=c.get("hole_records"), stage_seconds=s)
+    print(json.dumps(row, default=float), flush=True)
+    return row
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scenes", default="cornell,occluded,sponza")
+    ap.add_argument("--quality", default="FINAL")
+    ap.add_argument("--bounces", default="6,64")
+    ap.add_argument("--density-control", default="0")
+    ap.add_argument("--photons", type=int, default=None)
+    ap.add_argument("--figure5", action="store_true")
+    ap.add_argument("--kernel-coverage", choices=("default", "on", "off"), default="default",
+                    help="force E_k's surface-coverage kernel on or off at both qualities")
+    args = ap.parse_args(argv)
+    if args.kernel_coverage != "default":
+        from dataclasses import replace
+
+        from pdic.core import pipeline
+        chosen, on = pipeline.cache_parameters, args.kernel_coverage == "on"
+        pipeline.cache_parameters = lambda *a: replace(chosen(*a), kernel_coverage=on)
+    for name in args.scenes.split(","):
+        scene, pair, noise = load(name)
+        print(f"# {name}: reference noise {noise:.4f}", flush=True)
+        photons = args.photons or preset(args.quality).photons
+        if args.figure5:
+            out = bench_run.figure5(name, scene, photons, int(args.bounces.split(",")[-1]), {}, None, pair)
+            out.pop("_images", None)
+            continue
+        for bounces in (int(b) for b in args.bounces.split(",")):
+            for n in (int(v) for v in args.density_control.split(",")):
+                measure(name, scene, pair, args.quality,
+                        dict(max_bounces=bounces, density_control=n, photons=photons))
+
+
+if __name__ == "__main__":
+    main()
