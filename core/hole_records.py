@@ -1,6 +1,7 @@
 """Indirect light at texel samples: Equation 3 over the cache, with hole records (section 3.4).
 
-Samples no record accepts get new records placed on them (Algorithm 1's hole entry point,
+Samples no record accepts first try the zones widened by GAP_TEXELS texels (deviation: gap-fill);
+samples still uncovered get new records placed on them (Algorithm 1's hole entry point,
 :func:`~core.irradiance_cache.cache_for_holes`), refined like pass 3's records at Final
 quality; HOLE_ROUNDS rounds of that (deviation: hole-rounds), then the nearest record's
 irradiance for what is still uncovered (deviation: nearest-record-fallback). A record off a
@@ -9,10 +10,12 @@ sample's tangent plane counts only if it sees the sample, in every lookup and in
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .constants import FINE_ZONE_TEXELS, NEAREST_RECORDS, STREAM_HOLE_ORDER, STREAM_REFINE_HOLES, STREAM_VALIDITY
+from .constants import FINE_ZONE_TEXELS, GAP_TEXELS, NEAREST_RECORDS, STREAM_HOLE_ORDER, STREAM_REFINE_HOLES, STREAM_VALIDITY
 from .density import PhotonDensity
 from .executor import Executor, Progress
 from .interpolation import interpolate
@@ -47,19 +50,18 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
     with stats.stage("interpolate"):
         valid_points = points.take(valid)
         merged, sample_to_point = valid_points.per_texel()  # inside samples are not averaged in
-        E_merged, full, _, unfilled = interpolate_filling_holes(scene, caster, density, sources, cache, merged,
-                                                                params, settings, executor, progress)
-        E[valid] = E_merged[sample_to_point]
-        seeing = _record_visibility(caster, params)
-        fine = _fine_samples(full, merged, sample_to_point, texel_size, params, settings, executor, progress,
-                             seeing)
+        filled = fill_holes(scene, caster, density, sources, cache, merged, params, settings, executor, progress,
+                            texel_size)
+        E[valid] = filled.E[sample_to_point]
+        fine = _fine_samples(filled.smallest, sample_to_point, texel_size, settings)
         if len(fine):
-            E_fine, w_fine = interpolate(full, params.a, settings.gradients, valid_points.p[fine],
-                                         valid_points.n_shading[fine], executor, progress, caster=seeing)
+            E_fine, w_fine = interpolate(filled.cache, params.a, settings.gradients, valid_points.p[fine],
+                                         valid_points.n_shading[fine], executor, progress,
+                                         caster=_record_visibility(caster, params))
             covered = w_fine > 0
             E[valid[fine[covered]]] = E_fine[covered]
-    stats.add(texel_points_interpolated=len(merged) + len(fine), texel_points_unfilled=unfilled)
-    return E, full.take(slice(len(cache), None))
+    stats.add(texel_points_interpolated=len(merged) + len(fine), texel_points_unfilled=filled.unfilled)
+    return E, filled.cache.take(slice(len(cache), None))
 
 
 def _record_visibility(caster, params: CacheParameters):
@@ -67,18 +69,33 @@ def _record_visibility(caster, params: CacheParameters):
     return caster if params.record_visibility else None
 
 
-def _fine_samples(cache, merged, sample_to_point, texel_size, params, settings, executor, progress,
-                  caster=None) -> np.ndarray:
+def _fine_samples(smallest, sample_to_point, texel_size, settings) -> np.ndarray:
     """Samples whose texel lies in a zone narrower than FINE_ZONE_TEXELS texels (deviation: fine-zones).
 
+    smallest : (m,) the smallest zone radius a R_k accepted at each merged point (inf: none).
     There Equation 3 changes inside a texel (zone edges are steps), so every sample gets its own
     lookup, as a 2x2 box filter would, instead of the texel's centroid value.
     """
     if not settings.deviations.fine_zones:
         return np.zeros(0, np.int64)
-    _, _, smallest = interpolate(cache, params.a, settings.gradients, merged.p, merged.n_shading, executor,
-                                 progress, with_zone=True, caster=caster)
     return np.flatnonzero((smallest < FINE_ZONE_TEXELS * texel_size)[sample_to_point])
+
+
+@dataclass
+class FilledLookup:
+    """Equation 3 at texel points over the cache and its hole records (what :func:`fill_holes` returns)."""
+
+    E: np.ndarray
+    """(m, 3) float64 irradiance, W/m^2 (the nearest record's where no record accepts the point)."""
+    w: np.ndarray
+    """(m,) float64 Ward weight sums; 0 where no record accepts the point."""
+    smallest: np.ndarray
+    """(m,) float64 the smallest zone radius a R_k accepted at each point, scene units (inf: none)."""
+    cache: IrradianceCache
+    """The cache with the hole records appended."""
+    hole_records: int
+    unfilled: int
+    """Points no record accepts after the hole rounds."""
 
 
 def interpolate_filling_holes(scene, caster, density: PhotonDensity, sources: GatherSources | None,
@@ -88,32 +105,67 @@ def interpolate_filling_holes(scene, caster, density: PhotonDensity, sources: Ga
 
     Returns (E (m, 3), the cache with the hole records appended, hole records, samples left unfilled).
     """
+    filled = fill_holes(scene, caster, density, sources, cache, points, params, settings, executor, progress)
+    return filled.E, filled.cache, filled.hole_records, filled.unfilled
+
+
+def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | None, cache: IrradianceCache,
+               points, params: CacheParameters, settings: BakeSettings, executor: Executor,
+               progress: Progress, texel_size: float = 0.0) -> FilledLookup:
+    """:func:`interpolate_filling_holes`, with the weights and smallest zones at every point.
+
+    texel_size : world size of one texel; points no zone accepts first try zones widened by
+    GAP_TEXELS of it (deviation: gap-fill; 0 skips that).
+    Equation 3 runs once over all points and, after each round of hole records, again at the
+    points that were holes (covered points keep the records they had; the smallest zones there
+    leave hole records out).
+    """
     seeing = _record_visibility(caster, params)
-    E, w = interpolate(cache, params.a, settings.gradients, points.p, points.n_shading, executor, progress,
-                       caster=seeing)
+
+    def lookup(c, index):
+        return interpolate(c, params.a, settings.gradients, points.p[index], points.n_shading[index], executor,
+                           progress, with_zone=True, caster=seeing)
+
+    E, w, smallest = lookup(cache, slice(None))
     hole_records = 0
     for round_ in range(settings.deviations.hole_rounds):  # deviation: hole-rounds, docs/DEVIATIONS.md
         holes = np.flatnonzero(w <= 0)
         if len(holes) == 0:
             break
         progress.check()
-        cand_p, cand_n = points.p[holes], points.n_shading[holes]
-        new, zones, _ = cache_for_holes(density, cand_p, cand_n, params,
-                                        np.random.default_rng([settings.seed, STREAM_HOLE_ORDER, round_]),
-                                        existing=cache, caster=caster)
-        if settings.refine and len(new):
-            new, _ = refine_records(scene, caster, sources, new, zones, settings, params, executor, progress,
-                                    stream=STREAM_REFINE_HOLES + round_)
+        if settings.deviations.gap_fill and texel_size > 0:  # deviation: gap-fill, docs/DEVIATIONS.md
+            E_g, w_g, z_g = interpolate(cache, params.a, settings.gradients, points.p[holes], points.n_shading[holes],
+                                        executor, progress, with_zone=True, caster=caster,
+                                        margin=GAP_TEXELS * texel_size)
+            gap = w_g > 0
+            E[holes[gap]], w[holes[gap]], smallest[holes[gap]] = E_g[gap], w_g[gap], z_g[gap]
+            holes = holes[~gap]
+            if len(holes) == 0:
+                break
+        new = _hole_records(scene, caster, density, sources, cache, points.p[holes], points.n_shading[holes],
+                            params, settings, executor, progress, round_)
+        if len(new) == 0:
+            break
         hole_records += len(new)
         cache = cache.extend(new)
-        E_h, w_h = interpolate(cache, params.a, settings.gradients, cand_p, cand_n, executor, progress,
-                               caster=seeing)
-        E[holes], w[holes] = E_h, w_h
+        E[holes], w[holes], smallest[holes] = lookup(cache, holes)
     unfilled = np.flatnonzero(w <= 0)
     if len(unfilled) and len(cache) and settings.deviations.nearest_record_fallback:
         # deviation: nearest-record-fallback, docs/DEVIATIONS.md (counted in the stats).
         E[unfilled] = nearest_record(cache, points.p[unfilled], points.n_shading[unfilled], seeing)
-    return E, cache, hole_records, len(unfilled)
+    return FilledLookup(E, w, smallest, cache, hole_records, len(unfilled))
+
+
+def _hole_records(scene, caster, density, sources, cache, cand_p, cand_n, params, settings, executor, progress,
+                  round_: int) -> IrradianceCache:
+    """One round of section 3.4: Algorithm 1 over the uncovered samples, refined at Final quality."""
+    new, zones, _ = cache_for_holes(density, cand_p, cand_n, params,
+                                    np.random.default_rng([settings.seed, STREAM_HOLE_ORDER, round_]),
+                                    existing=cache, caster=caster)
+    if settings.refine and len(new):
+        new, _ = refine_records(scene, caster, sources, new, zones, settings, params, executor, progress,
+                                stream=STREAM_REFINE_HOLES + round_)
+    return new
 
 
 def nearest_record(cache: IrradianceCache, p: np.ndarray, n: np.ndarray, caster=None) -> np.ndarray:

@@ -34,11 +34,16 @@ class CacheLookup:
     caster: object = None
     """A :class:`core.rays.RayCaster`: with it a record off a point's tangent plane must see the point
     (deviation: record-visibility); None accepts records by Equation 2 and their walls alone."""
+    margin: float = 0.0
+    """Zones widened by this distance, scene units (deviation: gap-fill): the zone radius becomes
+    a R_k + margin and Equation 1's distance term uses R_k + margin / a; the normal term is unchanged.
+    Past its own zone a record's walls are unknown, so there it counts only if it sees the point
+    (one ray; needs ``caster``)."""
     zone: np.ndarray = field(init=False, repr=False)
     clearance: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self):
-        self.zone = self.a * np.asarray(self.cache.R, dtype=np.float64)
+        self.zone = self.a * np.asarray(self.cache.R, dtype=np.float64) + self.margin
         self.clearance = wall_clearance(self.cache.wall)
 
     def candidates(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -80,14 +85,20 @@ class CacheLookup:
         c = self.cache
         rows, rec = self.candidates(p)
         if len(rows):
-            p_r, n_r, p_k, n_k, R_k = p[rows], n[rows], c.p[rec], c.n[rec], c.R[rec]
+            p_r, n_r, p_k, n_k, R_k = p[rows], n[rows], c.p[rec], c.n[rec], c.R[rec] + self.margin / self.a
             w = ward_weight(p_r, n_r, p_k, n_k, R_k)
             ok = accepted(w, self.a, p_r, n_r, p_k, n_k, R_k)
             delta = p_r - p_k
-            near_wall = ok & (np.einsum("ij,ij->i", delta, delta) >= self.clearance[rec] ** 2)
+            d2 = np.einsum("ij,ij->i", delta, delta)
+            near_wall = ok & (d2 >= self.clearance[rec] ** 2)
             ok[near_wall] = ~beyond_wall(c.wall[rec[near_wall]], delta[near_wall], n_k[near_wall])
             if self.caster is not None:  # a surface between point and record hides it (a closed box's inside)
                 ok[ok] = ~self.caster.hidden_off_plane(p_r[ok], n_r[ok], p_k[ok], n_k[ok])
+            if self.margin > 0:  # deviation: gap-fill: past the record's own zone, walls are unknown
+                past = np.flatnonzero(ok & (d2 >= (self.a * c.R[rec]) ** 2))
+                if len(past):
+                    ok[past] = self.caster is not None and self.caster.sides_visible(
+                        p_r[past], n_r[past], p_k[past], n_k[past])
             rows, rec, w = rows[ok], rec[ok], w[ok]
             E_rec = record_estimate(c.E[rec], p_r[ok], n_r[ok], p_k[ok], n_k[ok],
                                     c.grad_r[rec] if self.use_gradients else None,
@@ -103,14 +114,15 @@ class CacheLookup:
 
 
 def interpolate(cache: IrradianceCache, a: float, gradients: bool, p: np.ndarray, n: np.ndarray, executor,
-                progress, with_zone: bool = False, caster=None) -> tuple:
+                progress, with_zone: bool = False, caster=None, margin: float = 0.0) -> tuple:
     """Equation 3 at points p, n (m, 3), chunked over the executor: (E (m, 3), w_sum (m,)), plus
     (m,) the smallest accepted zone radius ``with_zone`` (see :meth:`CacheLookup.irradiance_and_zone`).
 
     caster : a :class:`core.rays.RayCaster` (deviation: record-visibility, see :attr:`CacheLookup.caster`);
         its ``rays_cast`` counts the visibility rays.
+    margin : zones widened by this distance (deviation: gap-fill, see :attr:`CacheLookup.margin`).
     """
-    lookup = CacheLookup(cache, a, gradients)
+    lookup = CacheLookup(cache, a, gradients, margin=margin)
 
     def run(index, s):
         chunk = copy.copy(lookup)  # shares the cache's arrays; a view of the BVH per chunk counts its own rays

@@ -42,6 +42,9 @@ class Deviations:
     """Texels inside narrow zones are interpolated per sample, not once at their centroid."""
     hole_rounds: int = HOLE_ROUNDS
     """Rounds of hole records (section 3.4); the paper places them once."""
+    gap_fill: bool = True
+    """Texel samples no record accepts take Equation 3 over zones widened by GAP_TEXELS texels (walls and
+    visibility checked past a zone) before any hole record is placed."""
     nearest_record_fallback: bool = True
     """Texel samples still uncovered after the hole rounds take the nearest record's E_k."""
     record_visibility: bool = True
