@@ -93,6 +93,27 @@ def test_kernel_coverage_lifts_a_bars_density_estimate_toward_the_truth():
     assert abs(covered[0] - true_E) < 0.5 * true_E
 
 
+def test_kernel_coverage_ignores_photons_on_a_step_above_a_bars_face():
+    # Sponza's mouldings: a record on a thin ledge whose disc also holds a wide same-facing step a
+    # few cm in front of it. The coverage probes start just above the ledge's plane and cannot see
+    # the step, so the step's photons must not count either, or the ledge's small share divides
+    # them too: whole small charts came out up to 12x Cycles (issue #11).
+    bar = quad([-0.02, -2, 0], [0.04, 0, 0], [0, 4, 0])
+    step = quad([0.06, -2, 0.08], [2, 0, 0], [0, 4, 0])  # 8 cm above the bar's plane, facing up too
+    tris = np.concatenate([bar, step])
+    scene = lit(tris, PointLight("p", np.array([0, 0, 1.0]), np.full(3, 100.0)))
+    caster = RayCaster(tris)
+    photons, _ = trace_photons(scene, caster, 40_000, 1, seed=2)
+    density = PhotonDensity(photons)
+    density.is_indirect = np.ones(len(photons), bool)  # count the first hits as the estimate's photons
+    p_k, n_k, R_k, a = np.zeros(3), np.array([0.0, 0, 1]), 0.5, 0.5
+    true_E = 100.0 / (4 * np.pi * 1.0)  # P / (4 pi d^2) straight below the light
+    coverage = surface_coverage(caster, p_k, n_k, a * R_k, None)
+    _, _, covered, used = density.record(p_k, n_k, R_k, a, None, coverage)
+    assert used > 0
+    assert abs(covered[0] - true_E) < 0.5 * true_E
+
+
 def test_gather_hits_outside_every_record_take_the_nearest_visible_photons_light():
     # Pass 3 reads indirect light at its rays' hits from pass 2's records; where none accepts
     # the hit (a third of Sponza's hits) it must fall back to the nearest photon, not to 0, but
