@@ -12,7 +12,7 @@ from itertools import chain
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .constants import R_K_DISTANCE_FLOOR, R_K_SAME_SIDE_COS, R_OVERSAMPLE, SAME_SURFACE_COS, WALL_MASS_FLOOR
+from .constants import COVERAGE_LIFT, R_K_DISTANCE_FLOOR, R_K_SAME_SIDE_COS, R_OVERSAMPLE, SAME_SURFACE_COS, WALL_MASS_FLOOR
 from .photons import PhotonMap
 from .record_walls import beyond_wall
 from .ward import accepted_from, weight_from
@@ -93,7 +93,8 @@ class PhotonDensity:
         distance, not by Ward's weight: the kernel is normalised over the whole disc, and on
         a curved surface Equation 2 accepts a smaller region. ``wall`` (deviation:
         wall-sectors) leaves out photons past the record's walls; ``coverage`` (deviation:
-        surface-coverage) replaces the disc's mass by the share of it that is surface; with
+        surface-coverage) replaces the disc's mass by the share of it that is surface and leaves
+        out the photons above the surface it measured; with
         ``caster`` (a :class:`~core.rays.RayCaster`; deviation: record-visibility) photons off the
         record's tangent plane that cannot see it are left out.
         """
@@ -121,6 +122,10 @@ class PhotonDensity:
             u = np.minimum(wall.astype(np.float64) / radius[:, None], 1.0)
             mass = np.where(walled, np.maximum(np.mean(2 * u ** 2 - u ** 4, axis=1), WALL_MASS_FLOOR), 1.0)
         if coverage is not None:  # measured by surface_coverage (walls included): the share that is surface
+            # The probes see surface up to COVERAGE_LIFT r above the tangent plane; photons higher up (a
+            # moulding's step in front of a thin ledge) lie on surface the mass leaves out and would be
+            # divided by the ledge's small share alone: measured 6 % of Sponza's texels > 2x Cycles.
+            use &= np.einsum("ij,ij->i", delta, n_r) <= COVERAGE_LIFT * radius[rec]
             mass = np.asarray(coverage, np.float64)
         if caster is not None:  # photons on the far side of a surface are not this record's
             check = np.flatnonzero(use)
