@@ -56,7 +56,7 @@ class BakeStats:
             wall = self.seconds.get(name, 0.0)
             if spent <= 0.0 or wall <= 0.0:
                 continue
-            out[f"embree_seconds_{name}"] = round(spent, 4)
+            out[f"embree_seconds_{name}"] = float(f"{spent:.6g}")  # a tiny stage stays above 0
             out[f"embree_share_{name}"] = min(spent / (wall * max(self.workers, 1)), 1.0)
         return out
 
