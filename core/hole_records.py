@@ -122,9 +122,9 @@ def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | N
     """
     seeing = _record_visibility(caster, params)
 
-    def lookup(c, index):
+    def lookup(c, index, caster=seeing, margin=0.0):
         return interpolate(c, params.a, settings.gradients, points.p[index], points.n_shading[index], executor,
-                           progress, with_zone=True, caster=seeing)
+                           progress, with_zone=True, caster=caster, margin=margin)
 
     E, w, smallest = lookup(cache, slice(None))
     hole_records = 0
@@ -134,9 +134,7 @@ def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | N
             break
         progress.check()
         if settings.deviations.gap_fill and texel_size > 0:  # deviation: gap-fill, docs/DEVIATIONS.md
-            E_g, w_g, z_g = interpolate(cache, params.a, settings.gradients, points.p[holes], points.n_shading[holes],
-                                        executor, progress, with_zone=True, caster=caster,
-                                        margin=GAP_TEXELS * texel_size)
+            E_g, w_g, z_g = lookup(cache, holes, caster=caster, margin=GAP_TEXELS * texel_size)
             gap = w_g > 0
             E[holes[gap]], w[holes[gap]], smallest[holes[gap]] = E_g[gap], w_g[gap], z_g[gap]
             holes = holes[~gap]
