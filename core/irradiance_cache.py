@@ -381,19 +381,17 @@ class _Records:
 def neighbour_clamp(p: np.ndarray, R: np.ndarray) -> np.ndarray:
     """One min-plus pass: R_k <- min_j (R_j + |p_k - p_j|) over neighbours within R_k ([KBPZ06]).
 
-    The result satisfies R_k <= R_j + |p_k - p_j| for every pair, so a single pass is final.
+    Only a neighbour closer than R_k can lower R_k, so each record queries its own ball (one
+    query over the largest R pairs every record with thousands of others on a scene whose zones
+    span centimetres to metres). The result satisfies R_k <= R_j + |p_k - p_j| for every pair,
+    so a single pass is final.
     """
     if len(p) < 2:
         return R.copy()
-    tree = cKDTree(p)
     out = R.copy()
-    pairs = tree.query_pairs(float(R.max()), output_type="ndarray")
-    if len(pairs) == 0:
-        return out
-    i, j = pairs[:, 0], pairs[:, 1]
-    d = np.linalg.norm(p[i] - p[j], axis=1)
-    np.minimum.at(out, i, R[j] + d)
-    np.minimum.at(out, j, R[i] + d)
+    lengths, j = ball_pairs(cKDTree(p), p, R)
+    k = np.repeat(np.arange(len(p)), lengths)
+    np.minimum.at(out, k, R[j] + np.linalg.norm(p[k] - p[j], axis=1))
     return out
 
 
