@@ -1,6 +1,6 @@
 """Converged Cycles references: 64 diffuse bounces, sample clamping off, adaptive sampling off.
 
-    .venv/bin/python bench/converged_references.py [--only cornell,sponza,occluded]
+    .venv/bin/python bench/converged_references.py [--only cornell,sponza,occluded] [--scenes-only]
 
 Each reference is a pair of Cycles INDIRECT bakes with seeds 1 and 2 (``spp`` samples each),
 so its own noise is known: rms(b1 - b2) / sqrt 2 per bake, and a comparison against the pair
@@ -103,7 +103,7 @@ def join(objects: list) -> list:
     return [o for o in bpy.context.scene.objects if o.type == "MESH"]
 
 
-def one_object(name: str, spp: int, density: float) -> None:
+def one_object(name: str, spp: int, density: float, scenes_only: bool = False) -> None:
     objects = bench_scenes.load_sponza() if name == "sponza" else bench_scenes.load_occluded()
     objects = join(objects)
     settings = preset("FINAL", texel_density=density, min_resolution=32)
@@ -114,6 +114,8 @@ def one_object(name: str, spp: int, density: float) -> None:
 
     sizes = {t.name: (t.width, t.height) for t in scene.targets}
     print(name, "targets", sizes, "triangles", scene.geometry.count, flush=True)
+    if scenes_only:
+        return
     pair, seconds = seed_pair(objects, LIGHTMAP_UV, sizes, spp)
     save_pair(REFERENCES / f"{name}_one_d{density:g}_{spp}x2_{BOUNCES}_INDIRECT.npz", pair, seconds, averaged=False)
 
@@ -121,14 +123,17 @@ def one_object(name: str, spp: int, density: float) -> None:
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--only", default="cornell,sponza,occluded")
+    ap.add_argument("--scenes-only", action="store_true",
+                    help="write only the one-object core scenes (the committed references' UVs), no Cycles bake")
     args = ap.parse_args(argv)
     pdic_addon.register()
     for name in [s.strip() for s in args.only.split(",") if s.strip()]:
         plan = PLAN[name]
         if name == "cornell":
-            cornell(plan["spp"])
+            if not args.scenes_only:
+                cornell(plan["spp"])
         else:
-            one_object(name, plan["spp"], plan["density"])
+            one_object(name, plan["spp"], plan["density"], args.scenes_only)
 
 
 if __name__ == "__main__":
