@@ -26,6 +26,9 @@ STREAM_PHOTON_DIRECT = 11
 """Direct light at photons (virtual rays' radiance), ``[seed, 11, chunk]``."""
 STREAM_VALIDITY = 12
 """Texel validity rays, ``[seed, 12, target stream, chunk]``."""
+STREAM_DIRECT_FOOTPRINT = 13
+"""Direct light over edge texels' footprints: jitter ``[seed, 13, target stream]``, shadow rays
+``[seed, 13, target stream, 1, chunk]`` (core/direct_footprint.py)."""
 STREAM_REFINE_HOLES = 20
 """Pass 3 on hole records of round r: ``[seed, 20 + r, batch]``."""
 STREAM_DENSITY_CONTROL = 5
@@ -140,3 +143,18 @@ VALIDITY_RAYS = 8
 """Hemisphere rays per texel sample (at most) of the texel validity test."""
 BACKFACE_FRACTION = 0.5
 """A sample is inside geometry when more than this fraction of its rays hit back faces."""
+
+# --------------------------------------------------------------------------- direct light over texel footprints
+DIRECT_FOOTPRINT_PER_AXIS = 8
+"""Stratified jittered points per axis over an edge texel (64 points): a straight hard edge's lit
+fraction to ~2 % (std), about Cycles' own noise at 256 spp there (core/direct_footprint.py)."""
+DIRECT_EDGE_CONTRAST = 0.05
+"""A texel is an edge texel when its samples' luminance spread, or its mean's difference from a
+neighbour on the same surface, exceeds this share of the brighter (smooth falloff between texels
+stays below it except within a few texels of a light)."""
+DIRECT_EDGE_FLOOR = 1e-3
+"""Luminance below this share of the target's brightest texel counts as dark when judging edges
+(a black texel next to a near-black one is no edge worth 64 points)."""
+DIRECT_NEIGHBOUR_TEXELS = 2.0
+"""Neighbouring texels are compared only if their sample centroids lie within this many texel
+sizes of each other (otherwise they are different charts that merely touch in the image)."""

@@ -31,6 +31,7 @@ from .constants import R_MIN_FLOOR, STREAM_DIRECT
 from .density import PhotonDensity
 from .density_control import controlled_pass
 from .direct import shade_direct
+from .direct_footprint import footprint_direct
 from .executor import Executor, Progress, default_workers
 from .hole_records import indirect_at_texels, interpolate_filling_holes  # noqa: F401  (re-exported)
 from .interpolation import CacheLookup
@@ -239,7 +240,7 @@ def shade_direct_at_targets(run: "_Run", targets: list[TargetTexels]) -> None:
         return
     shaded = []
 
-    def shade(t: TargetTexels):
+    def shade(index: int, t: TargetTexels):
         if not shaded:
             run.progress.begin("Direct light")
         shaded.append(t)
@@ -248,12 +249,17 @@ def shade_direct_at_targets(run: "_Run", targets: list[TargetTexels]) -> None:
             E, counters = shade_direct(run.scene, run.caster(), p.p, p.n_shading, p.n_geometric,
                                        settings.direct_samples, settings.seed, (STREAM_DIRECT, t.stream),
                                        run.executor, run.progress)
+            if settings.deviations.direct_footprint:  # deviation: direct-footprint, docs/DEVIATIONS.md
+                E, more = footprint_direct(run.scene, run.caster(), index, p, t.raster, t.texel_size, E, settings,
+                                           t.stream, run.executor, run.progress)
+                counters.update(more)
         stats.add(**counters)
         return E
 
-    for t in targets:
-        key = store.key("direct", run.transport(), t.key, settings.direct_samples, settings.seed)
-        t.E_direct = store.memoise("direct", key, lambda: shade(t))
+    for index, t in enumerate(targets):  # targets are rasterise_targets' list: scene.targets' order
+        key = store.key("direct", run.transport(), t.key, settings.direct_samples, settings.seed,
+                        settings.deviations.direct_footprint)
+        t.E_direct = store.memoise("direct", key, lambda: shade(index, t))
     stats.set(targets_shaded_direct=len(shaded))
 
 

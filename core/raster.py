@@ -366,3 +366,81 @@ def _clip_half_plane(poly, count, axis, bound, sign):
     order = np.argsort(~emit, axis=1, kind="stable")[:, :cap]
     new_count = np.minimum(emit.sum(1), cap)
     return np.take_along_axis(out, order[:, :, None], axis=1), new_count
+
+
+# --------------------------------------------------------------------------- footprint points
+def footprint_points(uv: np.ndarray, width: int, height: int, texels: np.ndarray, per_axis: int,
+                     rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Stratified jittered points over the footprint of chosen texels, each on the triangle holding it.
+
+    Texel (x, y) gets ``per_axis`` x ``per_axis`` strata of [x, x+1] x [y, y+1], one uniform point
+    in each; a point inside several triangles goes to the one it is most inside (then the lowest
+    index, as :func:`rasterize`), a point inside none is dropped. The points are thus uniform over
+    the part of the texel the triangles cover (the footprint clipped to them), and their count per
+    texel is that part's area in strata.
+
+    Parameters
+    ----------
+    uv : (t, 3, 2) float32 light-map UVs per triangle corner, [0, 1].
+    width, height : light-map size in texels.
+    texels : (k,) int64 flat texel indices y * width + x, unique.
+    per_axis : strata per texel axis (typical 8: 64 points).
+    rng : the jitter's random stream; draws (k, per_axis, per_axis, 2) uniforms in ``texels``' order.
+
+    Returns
+    -------
+    texel (s,) int64, triangle (s,) int64 index into ``uv``, barycentric (s, 3) float64; sorted by texel.
+    """
+    texels = np.asarray(texels, np.int64)
+    m = int(per_axis)
+    jitter = rng.random((len(texels), m, m, 2))
+    if len(texels) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
+    strata = np.stack(np.meshgrid(np.arange(m), np.arange(m), indexing="xy"), axis=-1)  # (m, m, 2): (sx, sy)
+    corner = np.stack([texels % width, texels // width], axis=1).astype(np.float64)
+    p_texel = np.asarray(uv, np.float64) * [width, height]
+    # points in texel units, (k, m*m, 2)
+    pts = (corner[:, None, :] + ((strata[None] + jitter) / m).reshape(len(texels), m * m, 2))
+    slot = np.full(width * height, -1, np.int64)
+    slot[texels] = np.arange(len(texels))
+    pair_slot, pair_tri = _footprint_pairs(p_texel, width, height, slot)
+    area2 = _area2(p_texel)
+    found_point, found_tri, found_bary, found_depth = [], [], [], []
+    per_batch = max(1, BATCH_ELEMENTS // (m * m))
+    for s in range(0, len(pair_slot), per_batch):
+        ps, pt = pair_slot[s:s + per_batch], pair_tri[s:s + per_batch]
+        q = pts[ps]
+        b0, b1, b2 = _barycentric(p_texel[pt], q[..., 0], q[..., 1], area2[pt])
+        least = np.minimum(np.minimum(b0, b1), b2)
+        r, c = np.nonzero(least >= -INSIDE_EPS)
+        found_point.append(ps[r] * (m * m) + c)
+        found_tri.append(pt[r])
+        found_bary.append(np.stack([b0[r, c], b1[r, c], b2[r, c]], axis=1))
+        found_depth.append(least[r, c])
+    if not found_point:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
+    point, tri = np.concatenate(found_point), np.concatenate(found_tri)
+    bary, depth = np.concatenate(found_bary), np.concatenate(found_depth)
+    order = np.lexsort((tri, -depth, point))  # one triangle per point: most inside, then lowest index
+    first = order[np.r_[True, point[order][1:] != point[order][:-1]]] if len(point) else order
+    return texels[point[first] // (m * m)], tri[first], _normalise(bary[first])
+
+
+def _footprint_pairs(p_texel, width, height, slot):
+    """(texel slot, triangle) pairs whose bounding boxes meet, for texels with ``slot`` >= 0."""
+    lo_x = np.maximum(np.floor(p_texel[:, :, 0].min(1)), 0).astype(np.int64)
+    hi_x = np.minimum(np.ceil(p_texel[:, :, 0].max(1)) - 1, width - 1).astype(np.int64)
+    lo_y = np.maximum(np.floor(p_texel[:, :, 1].min(1)), 0).astype(np.int64)
+    hi_y = np.minimum(np.ceil(p_texel[:, :, 1].max(1)) - 1, height - 1).astype(np.int64)
+    live = np.flatnonzero((hi_x >= lo_x) & (hi_y >= lo_y) & (np.abs(_area2(p_texel)) > MIN_AREA2))
+    slots, tris = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+    if len(live):
+        for item, x0, y0, x1, y1, bw, bh in _batches(lo_x[live], lo_y[live], hi_x[live], hi_y[live]):
+            tx = x0[:, None, None] + np.arange(bw)[None, None, :]
+            ty = y0[:, None, None] + np.arange(bh)[None, :, None]
+            valid = (tx <= x1[:, None, None]) & (ty <= y1[:, None, None])
+            s = slot[np.where(valid, ty * width + tx, 0)]
+            m, r, c = np.nonzero(valid & (s >= 0))
+            slots.append(s[m, r, c])
+            tris.append(live[item][m])
+    return np.concatenate(slots), np.concatenate(tris)

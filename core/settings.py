@@ -50,6 +50,9 @@ class Deviations:
     record_visibility: bool = True
     """A record (or a hole record's photon) off a texel sample's tangent plane counts only if it
     sees the sample: no light from a closed box's inside onto the floor under it."""
+    direct_footprint: bool = True
+    """Texels a shadow edge crosses take direct light over DIRECT_FOOTPRINT_PER_AXIS^2 jittered points of
+    their footprint, as Cycles' bake integrates it (core/direct_footprint.py)."""
     transparent_shadows: bool = True
     """Shadow rays and photons pass transmissive triangles (Geometry.transmission), as Cycles'
     transparent shadows; off, every triangle is opaque."""

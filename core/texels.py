@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .raster import rasterize
+from .raster import footprint_points, rasterize
 from .scene import Scene
 
 
@@ -106,10 +106,7 @@ def lift_texels(scene: Scene, samples_per_axis: int) -> tuple[TexelPoints, list[
         samples = rasterize(target.lightmap_uv[local], target.width, target.height, samples_per_axis)
         tri = target.triangles[local[samples.triangle]]
         b = samples.barycentric  # weights of corners 0, 1, 2
-        p = np.einsum("nk,nkj->nj", b, geometry.positions[tri])
-        n_s = np.einsum("nk,nkj->nj", b, geometry.normals[tri].astype(np.float64))
-        n_g = face_n[tri]
-        n_s = _normalise_or(n_s, n_g)
+        p, n_s, n_g = _on_surface(geometry, face_n, tri, b)
         count = len(tri)
         parts.append((p, n_s, n_g, tri, b[:, 1:3].copy(), np.full(count, len(rasters), np.int32),
                       samples.texel, samples.weight))
@@ -122,6 +119,41 @@ def lift_texels(scene: Scene, samples_per_axis: int) -> tuple[TexelPoints, list[
         return empty, rasters
     columns = [np.concatenate(c) for c in zip(*parts)]
     return TexelPoints(*columns), rasters
+
+
+def footprint_texel_points(scene: Scene, target_index: int, texels: np.ndarray, per_axis: int,
+                           rng: np.random.Generator) -> TexelPoints:
+    """Stratified jittered points over the footprint of some texels of one target, on its surface.
+
+    The points of :func:`core.raster.footprint_points` lifted as :func:`lift_texels` lifts the
+    regular samples (same triangles kept, same normals); ``weight`` is 1 / (points of the texel),
+    so a texel's weights sum to 1 over the part of it the triangles cover.
+
+    Parameters
+    ----------
+    scene : the scene; ``scene.targets[target_index]`` is rasterised.
+    texels : (k,) int64 unique flat texel indices y * width + x of that target's image.
+    per_axis : strata per texel axis (typical 8).
+    rng : the jitter's random stream.
+    """
+    geometry = scene.geometry
+    target = scene.targets[target_index]
+    local = np.flatnonzero(geometry.areas()[target.triangles] > 0)
+    texel, tri_local, b = footprint_points(target.lightmap_uv[local], target.width, target.height,
+                                           texels, per_axis, rng)
+    tri = target.triangles[local[tri_local]]
+    p, n_s, n_g = _on_surface(geometry, geometry.face_normals(), tri, b)
+    counts = np.bincount(texel, minlength=target.width * target.height)
+    weight = (1.0 / np.maximum(counts[texel], 1)).astype(np.float32)
+    return TexelPoints(p, n_s, n_g, tri, b[:, 1:3].copy(), np.full(len(tri), target_index, np.int32), texel, weight)
+
+
+def _on_surface(geometry, face_n, tri, b):
+    """Position, shading normal and geometric normal (n, 3) of barycentrics b (n, 3) on triangles tri (n,)."""
+    p = np.einsum("nk,nkj->nj", b, geometry.positions[tri])
+    n_s = np.einsum("nk,nkj->nj", b, geometry.normals[tri].astype(np.float64))
+    n_g = face_n[tri]
+    return p, _normalise_or(n_s, n_g), n_g
 
 
 def splat(values: np.ndarray, points: TexelPoints, raster: TargetRaster) -> np.ndarray:

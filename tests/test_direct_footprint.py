@@ -1,0 +1,123 @@
+"""Direct light over texel footprints at hard shadow edges (core/direct_footprint.py, deviation direct-footprint).
+
+A 1 m floor at z = 0 baked at 32^2, a 300 W point light (radius 0) 3 m above its centre and a
+large occluder triangle at z = 1 whose edge casts a straight shadow edge across the floor at 30
+degrees to the texel grid. Each texel's exact value is the lit part of its square (the square
+clipped by the edge's half-plane) times E at that part's centroid (E varies by < 1 % across a texel
+here), divided by pi.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from pdic.core.pipeline import bake
+from pdic.core.scene import PointLight
+from pdic.core.settings import Deviations, preset
+
+from scenes import quad, quad_scene
+
+RES = 32
+POWER = 300.0
+LIGHT = np.array([0.5, 0.5, 3.0])
+OCCLUDER_Z = 1.0
+THETA = np.radians(30.0)
+A = np.array([np.cos(THETA), np.sin(THETA)])  # the floor's shadow edge: A . q = EDGE_T, shadow below
+EDGE_T = float(A @ [0.5, 0.5]) + 0.013
+DIRECT = preset("FINAL", indirect=False, threads=1)
+
+
+def _scene():
+    """Floor target (index 0) and an occluder triangle covering the half-plane A . o < t_o at z = 1."""
+    s = 1.0 - OCCLUDER_Z / LIGHT[2]  # the floor point q projects through the light to o = s q + (1 - s) L
+    t_o = EDGE_T * s + (1.0 - s) * float(A @ LIGHT[:2])
+    d = np.array([-A[1], A[0]])
+    p0 = A * t_o
+    corners = [p0 + 10 * d, p0 - 10 * d, p0 - 10 * A]
+    occluder = np.array([[[c[0], c[1], OCCLUDER_Z] for c in corners]])
+    floor = quad(np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))
+    return quad_scene([floor], {"floor": (0, RES)}, [PointLight("lamp", LIGHT, np.full(3, POWER))],
+                      extra=occluder)
+
+
+def _clip(poly: np.ndarray, a: np.ndarray, t: float) -> np.ndarray:
+    """The part of convex polygon (k, 2) where a . q >= t (Sutherland-Hodgman, one half-plane)."""
+    out = []
+    for p, q in zip(poly, np.roll(poly, -1, axis=0)):
+        dp, dq = a @ p - t, a @ q - t
+        if dp >= 0:
+            out.append(p)
+        if (dp >= 0) != (dq >= 0):
+            out.append(p + dp / (dp - dq) * (q - p))
+    return np.array(out).reshape(-1, 2)
+
+
+def _area_centroid(poly: np.ndarray) -> tuple[float, np.ndarray]:
+    if len(poly) < 3:
+        return 0.0, np.zeros(2)
+    x, y = poly[:, 0], poly[:, 1]
+    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    cross = x * yn - xn * y
+    area = 0.5 * cross.sum()
+    return abs(area), np.array([((x + xn) * cross).sum(), ((y + yn) * cross).sum()]) / (6 * area)
+
+
+def exact_texels() -> tuple[np.ndarray, np.ndarray]:
+    """(RES, RES) exact E / pi per texel and (RES, RES) lit fraction (rows = y)."""
+    value = np.zeros((RES, RES))
+    fraction = np.zeros((RES, RES))
+    h = 1.0 / RES
+    for j in range(RES):
+        for i in range(RES):
+            square = np.array([[i, j], [i + 1, j], [i + 1, j + 1], [i, j + 1]], float) * h
+            area, c = _area_centroid(_clip(square, A, EDGE_T))
+            fraction[j, i] = area / h ** 2
+            if area > 0:
+                d = LIGHT - np.array([c[0], c[1], 0.0])
+                r2 = d @ d
+                value[j, i] = fraction[j, i] * POWER * (d[2] / np.sqrt(r2)) / (4 * np.pi * r2) / np.pi
+    return value, fraction
+
+
+@pytest.fixture(scope="module")
+def exact():
+    return exact_texels()
+
+
+def _direct(settings):
+    result = bake(_scene(), settings)
+    return result.direct["floor"][..., 0].astype(np.float64), result.stats["counters"]
+
+
+def test_hard_shadow_edge_texels_hold_their_lit_fraction(exact):
+    value, fraction = exact
+    pdic, counters = _direct(DIRECT)
+    full = value.max()
+    err = np.abs(pdic - value) / full
+    edge = (fraction > 0) & (fraction < 1)
+    assert edge.sum() > 30
+    assert err[edge].max() < 0.08, f"worst edge texel off by {err[edge].max():.3f} of a lit texel"
+    assert np.sqrt((err[edge] ** 2).mean()) < 0.025
+    assert err[~edge].max() < 0.01  # away from the edge the footprint changes nothing that matters
+    # the extra points go to the edge only: a few texels either side of it, not the map
+    assert edge.sum() <= counters["direct_footprint_texels"] < 0.2 * RES * RES
+    assert counters["direct_footprint_shadow_rays"] > 0
+
+
+def test_without_footprint_the_edge_aliases_and_no_footprint_ray_is_cast(exact):
+    value, fraction = exact
+    pdic, counters = _direct(replace(DIRECT, deviations=Deviations(direct_footprint=False)))
+    edge = (fraction > 0) & (fraction < 1)
+    err = np.abs(pdic - value) / value.max()
+    assert err[edge].max() > 0.1  # the 2x2 points read the lit fraction in quarters
+    assert "direct_footprint_shadow_rays" not in counters
+
+
+def test_footprint_direct_light_is_the_same_for_the_same_seed_and_changes_with_it():
+    a, _ = _direct(DIRECT)
+    b, _ = _direct(DIRECT)
+    c, _ = _direct(replace(DIRECT, seed=1))
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
