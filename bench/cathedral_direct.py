@@ -36,6 +36,7 @@ from test_cathedral_direct_vs_cycles import DARK, LIGHTS, WITHIN, build_cathedra
 from test_direct_vs_cycles import bake_pdic  # noqa: E402
 
 from pdic import pdic_addon  # noqa: E402
+from pdic.core.settings import Deviations  # noqa: E402
 from pdic.pdic_addon import writeback  # noqa: E402
 from pdic.pdic_addon.uvmaps import LIGHTMAP_UV  # noqa: E402
 
@@ -125,6 +126,8 @@ def main(argv=None):
     ap.add_argument("--res", type=int, default=512)
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--examples", type=int, default=3)
+    ap.add_argument("--no-footprint", action="store_true", help="bake without the direct-footprint deviation")
+    ap.add_argument("--threads", type=int, default=0, help="PDIC worker threads (1 for CPU-second comparisons)")
     ap.add_argument("--out", default="/tmp/pdic_cathedral_direct")
     args = ap.parse_args(argv)
     folder = Path(args.out)
@@ -132,9 +135,15 @@ def main(argv=None):
 
     pdic_addon.register()
     ob = build(args.detail)
-    t = time.perf_counter()
-    job, _ = bake_pdic(bpy, folder, 1, args.res)
-    pdic_s = time.perf_counter() - t
+    t, cpu = time.perf_counter(), time.process_time()
+    job, _ = bake_pdic(bpy, folder, 1, args.res, threads=args.threads,
+                       deviations=Deviations(direct_footprint=not args.no_footprint))
+    pdic_s, pdic_cpu = time.perf_counter() - t, time.process_time() - cpu
+    counters = job.result.stats.get("counters", {})
+    print(f"PDIC: {pdic_cpu:.1f} CPU s (whole BakeJob, unwrap included), direct stage "
+          f"{job.result.stats.get('seconds', {}).get('direct', float('nan')):.2f} s wall; shadow rays "
+          f"{counters.get('shadow_rays', 0):,} + footprint {counters.get('direct_footprint_shadow_rays', 0):,} on "
+          f"{counters.get('direct_footprint_texels', 0):,} texels")
     P = job.result.lightmaps[ob.name][..., :3]
     H, W = P.shape[:2]
     writeback.set_shading([ob], baked=False)

@@ -48,6 +48,8 @@ class DirectResult:
     """Direct irradiance of a chunk of n points, with work counters.
 
     E : (n, 3) float64 front-side irradiance, W/m^2 (texel value is E / pi).
+    E_unoccluded : (n, 3) float64 the same samples' irradiance with every shadow ray unblocked
+        (no extra rays); E / E_unoccluded is the lit share, 1 or 0 away from shadow edges.
     shadow_rays : rays traced per light kind (keys of :data:`LIGHT_KINDS`).
     skipped : per light name (and :data:`EMISSIVE_KEY`, :data:`WORLD_KEY`): points that
         cast no shadow ray toward it (facing away, outside a spot cone, behind an area
@@ -55,6 +57,7 @@ class DirectResult:
     """
 
     E: np.ndarray
+    E_unoccluded: np.ndarray | None = None
     shadow_rays: dict = field(default_factory=lambda: {k: 0 for k in LIGHT_KINDS})
     skipped: dict = field(default_factory=dict)
 
@@ -62,12 +65,13 @@ class DirectResult:
     def concatenate(results: list["DirectResult"]) -> "DirectResult":
         """Join chunk results in order: E stacked, counters summed."""
         E = np.concatenate([r.E for r in results]) if results else np.zeros((0, 3))
+        E_unoccluded = np.concatenate([r.E_unoccluded for r in results]) if results else np.zeros((0, 3))
         rays = {k: sum(r.shadow_rays.get(k, 0) for r in results) for k in LIGHT_KINDS}
         skipped: dict = {}
         for r in results:
             for k, v in r.skipped.items():
                 skipped[k] = skipped.get(k, 0) + v
-        return DirectResult(E, rays, skipped)
+        return DirectResult(E, E_unoccluded, rays, skipped)
 
 
 def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, normals: np.ndarray,
@@ -100,7 +104,7 @@ def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, norma
         raise ValueError("direct_irradiance: non-finite receiving points")
     if samples < 1:
         raise ValueError(f"direct_irradiance: samples must be >= 1, got {samples}")
-    out = DirectResult(np.zeros((n, 3)))
+    out = DirectResult(np.zeros((n, 3)), np.zeros((n, 3)))
     if n == 0:
         return out
     for emitter in scene.emitters():
@@ -144,11 +148,12 @@ def _trace(out: DirectResult, caster: RayCaster, p, n_g, shadow: ShadowSamples) 
     traced = np.zeros(len(p), bool)
     traced[idx[rows]] = True
     out.skipped[shadow.key] = out.skipped.get(shadow.key, 0) + int(len(p) - traced.sum())
-    contribution = np.where(ok, weight, 0.0) * vis
-    if shadow.colour.ndim == 3:  # a colour per sample (emissive triangles of different radiance)
-        out.E[idx] += (contribution[..., None] * shadow.colour).sum(axis=1) / shadow.samples
-    else:
-        out.E[idx] += shadow.colour * (contribution.sum(axis=1) / shadow.samples)[:, None]
+    unoccluded = np.where(ok, weight, 0.0)
+    for E, contribution in ((out.E, unoccluded * vis), (out.E_unoccluded, unoccluded)):
+        if shadow.colour.ndim == 3:  # a colour per sample (emissive triangles of different radiance)
+            E[idx] += (contribution[..., None] * shadow.colour).sum(axis=1) / shadow.samples
+        else:
+            E[idx] += shadow.colour * (contribution.sum(axis=1) / shadow.samples)[:, None]
 
 
 def _skip_all(out: DirectResult, key: str, n: int):
@@ -162,6 +167,15 @@ def shade_direct(scene: Scene, caster: RayCaster, p: np.ndarray, n_shading: np.n
     stream : int or sequence of ints after ``seed`` in each chunk's generator
         ``default_rng([seed, *stream, chunk])`` (core/constants.py lists the streams).
     """
+    result, counters = shade_direct_result(scene, caster, p, n_shading, n_geometric, samples, seed, stream,
+                                           executor, progress)
+    return result.E, counters
+
+
+def shade_direct_result(scene: Scene, caster: RayCaster, p: np.ndarray, n_shading: np.ndarray,
+                        n_geometric: np.ndarray, samples: int, seed: int, stream, executor, progress
+                        ) -> tuple[DirectResult, dict]:
+    """:func:`shade_direct` returning the whole :class:`DirectResult` (``E_unoccluded`` too)."""
     serial = caster.serial()
     prefix = [seed, *np.atleast_1d(stream).tolist()]
 
@@ -176,4 +190,4 @@ def shade_direct(scene: Scene, caster: RayCaster, p: np.ndarray, n_shading: np.n
     for light, skipped in merged.skipped.items():  # points that cast no ray toward this emitter
         counters[f"shadow_rays_skipped_points:{light}"] = skipped
     caster.rays_cast += counters["shadow_rays"]
-    return merged.E, counters
+    return merged, counters

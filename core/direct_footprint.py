@@ -5,10 +5,10 @@ edge crosses holds the lit fraction of its area. ``texel_samples`` (2 x 2) point
 a texel reads 0, 1/4, ..., 1 whatever the edge's position (Cornell 256^2, direct part alone: 14.8 %
 per texel against Cycles). Here, after direct light at the regular samples:
 
-1. **Edge texels** (:func:`edge_texels`): a texel whose samples disagree (luminance spread above
-   ``DIRECT_EDGE_CONTRAST`` of its brightest sample), or whose mean differs by that much from a
-   4-neighbour on the same surface (texel centroids within ``DIRECT_NEIGHBOUR_TEXELS`` texel
-   sizes: an edge may run between the two texels' samples).
+1. **Edge texels** (:func:`edge_texels`): a texel whose samples' lit shares E / E_unoccluded
+   disagree by more than ``DIRECT_EDGE_CONTRAST``, or whose mean lit share differs by that much
+   from a 4-neighbour's on the same surface (texel centroids within ``DIRECT_NEIGHBOUR_TEXELS``
+   texel sizes: an edge may run between the two texels' samples).
 2. **Footprint**: ``DIRECT_FOOTPRINT_PER_AXIS``^2 stratified jittered points over each edge texel,
    on the triangles that cover it (:func:`core.texels.footprint_texel_points`); soft emitters take
    ``direct_samples x texel_samples^2 / points`` rays per point (at least 1), so a texel's soft
@@ -24,46 +24,49 @@ from __future__ import annotations
 
 import numpy as np
 
-from .constants import (DIRECT_EDGE_CONTRAST, DIRECT_EDGE_FLOOR, DIRECT_FOOTPRINT_PER_AXIS,
+from .constants import (DIRECT_EDGE_CONTRAST, DIRECT_EDGE_FLOOR, DIRECT_FOOTPRINT_PER_AXIS, DIRECT_FOOTPRINT_SIDE,
                         DIRECT_NEIGHBOUR_TEXELS, STREAM_DIRECT_FOOTPRINT)
-from .direct import shade_direct
+from .direct import DirectResult, shade_direct
 from .texels import TargetRaster, TexelPoints, footprint_texel_points
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 """Rec. 709 weights: which texels disagree is judged on luminance."""
 
 
-def edge_texels(E: np.ndarray, points: TexelPoints, raster: TargetRaster, texel_size: float,
+def edge_texels(direct: DirectResult, points: TexelPoints, raster: TargetRaster, texel_size: float,
                 contrast: float = DIRECT_EDGE_CONTRAST) -> np.ndarray:
-    """Flat indices (k,) int64, ascending, of the texels whose direct light may hold a shadow edge.
+    """Flat indices (k,) int64, ascending, of the texels a shadow edge may cross.
+
+    Judged on each sample's lit share s = L(E) / L(E_unoccluded) (L the luminance): 1 in full
+    light, 0 in umbra, whatever the falloff, so smooth light (which the symmetric 2 x 2 samples
+    already integrate to second order) costs nothing here.
 
     Parameters
     ----------
-    E : (n, 3) float64 direct irradiance at one target's samples ``points`` (W/m^2).
+    direct : the regular samples' :class:`DirectResult` (``E`` and ``E_unoccluded``, (n, 3) W/m^2).
     points : that target's samples (``texel``, ``weight``, ``p``).
     raster : its image size and coverage.
     texel_size : world size of one texel (neighbours farther apart than
         ``DIRECT_NEIGHBOUR_TEXELS`` of it lie on different surfaces and are not compared).
-    contrast : relative luminance difference that marks an edge (typical 0.05).
+    contrast : lit-share difference that marks an edge (typical 0.05).
     """
     size = raster.width * raster.height
-    L = np.asarray(E, np.float64) @ LUMINANCE
+    L_open = np.asarray(direct.E_unoccluded, np.float64) @ LUMINANCE
+    floor = DIRECT_EDGE_FLOOR * float(L_open.max(initial=0.0))
+    if floor <= 0:  # no direct light on this target
+        return np.zeros(0, np.int64)
+    lit = np.where(L_open > floor, (np.asarray(direct.E, np.float64) @ LUMINANCE) / np.maximum(L_open, floor), 1.0)
     texel = points.texel
     w = points.weight.astype(np.float64)
     w_sum = np.bincount(texel, weights=w, minlength=size)
     covered = w_sum > 0
-    if not covered.any():
-        return np.zeros(0, np.int64)
     safe = np.where(covered, w_sum, 1.0)
-    mean = np.bincount(texel, weights=w * L, minlength=size) / safe
-    floor = DIRECT_EDGE_FLOOR * float(mean[covered].max())
-    if floor <= 0:  # no direct light on this target
-        return np.zeros(0, np.int64)
+    mean = np.bincount(texel, weights=w * lit, minlength=size) / safe
     hi = np.full(size, -np.inf)
     lo = np.full(size, np.inf)
-    np.maximum.at(hi, texel, L)
-    np.minimum.at(lo, texel, L)
-    edge = covered & (hi - lo > contrast * np.maximum(hi, floor))
+    np.maximum.at(hi, texel, lit)
+    np.minimum.at(lo, texel, lit)
+    edge = covered & (hi - lo > contrast)
     centroid = np.stack([np.bincount(texel, weights=w * points.p[:, c], minlength=size) for c in range(3)], 1)
     centroid /= safe[:, None]
     near = (DIRECT_NEIGHBOUR_TEXELS * texel_size) ** 2
@@ -71,14 +74,14 @@ def edge_texels(E: np.ndarray, points: TexelPoints, raster: TargetRaster, texel_
     for a, b in ((img[:, :-1], img[:, 1:]), (img[:-1, :], img[1:, :])):
         a, b = a.ravel(), b.ravel()
         both = covered[a] & covered[b] & (((centroid[a] - centroid[b]) ** 2).sum(1) <= near)
-        differ = both & (np.abs(mean[a] - mean[b]) > contrast * np.maximum(np.maximum(mean[a], mean[b]), floor))
+        differ = both & (np.abs(mean[a] - mean[b]) > contrast)
         edge[a[differ]] = True
         edge[b[differ]] = True
     return np.flatnonzero(edge)
 
 
 def footprint_direct(scene, caster, target_index: int, points: TexelPoints, raster: TargetRaster,
-                     texel_size: float, E: np.ndarray, settings, stream: int, executor, progress
+                     texel_size: float, direct: DirectResult, settings, stream: int, executor, progress
                      ) -> tuple[np.ndarray, dict]:
     """Direct irradiance (n, 3) at one target's samples with edge texels integrated over their footprint.
 
@@ -87,20 +90,21 @@ def footprint_direct(scene, caster, target_index: int, points: TexelPoints, rast
     scene, caster : as :func:`core.direct.shade_direct`.
     target_index : the target's index in ``scene.targets`` (``points`` are its samples).
     points, raster, texel_size : the target's samples, image and world texel size.
-    E : (n, 3) float64 direct irradiance at ``points`` from :func:`core.direct.shade_direct`.
+    direct : :func:`core.direct.shade_direct_result` at ``points``.
     settings : ``BakeSettings`` (``direct_samples``, ``texel_samples``, ``seed``).
     stream : the target's random stream id; jitter and shadow rays draw from
         ``[seed, STREAM_DIRECT_FOOTPRINT, stream, ...]``.
 
     Returns
     -------
-    E (n, 3) float64 W/m^2 (a new array) and counters ``direct_footprint_texels``,
+    E (n, 3) float64 W/m^2 and counters ``direct_footprint_texels``,
     ``direct_footprint_points``, ``direct_footprint_shadow_rays``.
     """
-    texels = edge_texels(E, points, raster, texel_size)
+    E = direct.E
+    texels = edge_texels(direct, points, raster, texel_size)
     m = DIRECT_FOOTPRINT_PER_AXIS
     rng = np.random.default_rng([settings.seed, STREAM_DIRECT_FOOTPRINT, stream])
-    fp = footprint_texel_points(scene, target_index, texels, m, rng)
+    fp = footprint_texel_points(scene, target_index, texels, m, rng, DIRECT_FOOTPRINT_SIDE)
     counters = {"direct_footprint_texels": len(texels), "direct_footprint_points": len(fp),
                 "direct_footprint_shadow_rays": 0}
     if len(fp) == 0:

@@ -30,7 +30,7 @@ from .bake_cache import BakeCache, NoBakeCache, target_key, transport_key
 from .constants import R_MIN_FLOOR, STREAM_DIRECT
 from .density import PhotonDensity
 from .density_control import controlled_pass
-from .direct import shade_direct
+from .direct import shade_direct_result
 from .direct_footprint import footprint_direct
 from .executor import Executor, Progress, default_workers
 from .hole_records import indirect_at_texels, interpolate_filling_holes  # noqa: F401  (re-exported)
@@ -246,12 +246,13 @@ def shade_direct_at_targets(run: "_Run", targets: list[TargetTexels]) -> None:
         shaded.append(t)
         with stats.stage("direct"):
             p = t.points
-            E, counters = shade_direct(run.scene, run.caster(), p.p, p.n_shading, p.n_geometric,
-                                       settings.direct_samples, settings.seed, (STREAM_DIRECT, t.stream),
-                                       run.executor, run.progress)
+            direct, counters = shade_direct_result(run.scene, run.caster(), p.p, p.n_shading, p.n_geometric,
+                                                   settings.direct_samples, settings.seed, (STREAM_DIRECT, t.stream),
+                                                   run.executor, run.progress)
+            E = direct.E
             if settings.deviations.direct_footprint:  # deviation: direct-footprint, docs/DEVIATIONS.md
-                E, more = footprint_direct(run.scene, run.caster(), index, p, t.raster, t.texel_size, E, settings,
-                                           t.stream, run.executor, run.progress)
+                E, more = footprint_direct(run.scene, run.caster(), index, p, t.raster, t.texel_size, direct,
+                                           settings, t.stream, run.executor, run.progress)
                 counters.update(more)
         stats.add(**counters)
         return E

@@ -370,14 +370,14 @@ def _clip_half_plane(poly, count, axis, bound, sign):
 
 # --------------------------------------------------------------------------- footprint points
 def footprint_points(uv: np.ndarray, width: int, height: int, texels: np.ndarray, per_axis: int,
-                     rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     rng: np.random.Generator, side: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stratified jittered points over the footprint of chosen texels, each on the triangle holding it.
 
-    Texel (x, y) gets ``per_axis`` x ``per_axis`` strata of [x, x+1] x [y, y+1], one uniform point
-    in each; a point inside several triangles goes to the one it is most inside (then the lowest
-    index, as :func:`rasterize`), a point inside none is dropped. The points are thus uniform over
-    the part of the texel the triangles cover (the footprint clipped to them), and their count per
-    texel is that part's area in strata.
+    Texel (x, y)'s footprint is the square of ``side`` texels centred on (x + 1/2, y + 1/2); it gets
+    ``per_axis`` x ``per_axis`` strata, one uniform point in each; a point inside several triangles
+    goes to the one it is most inside (then the lowest index, as :func:`rasterize`), a point inside
+    none is dropped. The points are thus uniform over the part of the footprint the triangles cover
+    (clipped to them), and their count per texel is that part's area in strata.
 
     Parameters
     ----------
@@ -386,6 +386,7 @@ def footprint_points(uv: np.ndarray, width: int, height: int, texels: np.ndarray
     texels : (k,) int64 flat texel indices y * width + x, unique.
     per_axis : strata per texel axis (typical 8: 64 points).
     rng : the jitter's random stream; draws (k, per_axis, per_axis, 2) uniforms in ``texels``' order.
+    side : footprint width in texels (1 = the texel; Cycles bakes 0.5, see DIRECT_FOOTPRINT_SIDE).
 
     Returns
     -------
@@ -397,10 +398,10 @@ def footprint_points(uv: np.ndarray, width: int, height: int, texels: np.ndarray
     if len(texels) == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
     strata = np.stack(np.meshgrid(np.arange(m), np.arange(m), indexing="xy"), axis=-1)  # (m, m, 2): (sx, sy)
-    corner = np.stack([texels % width, texels // width], axis=1).astype(np.float64)
+    corner = np.stack([texels % width, texels // width], axis=1) + 0.5 * (1.0 - side)
     p_texel = np.asarray(uv, np.float64) * [width, height]
     # points in texel units, (k, m*m, 2)
-    pts = (corner[:, None, :] + ((strata[None] + jitter) / m).reshape(len(texels), m * m, 2))
+    pts = corner[:, None, :] + (side * (strata[None] + jitter) / m).reshape(len(texels), m * m, 2)
     slot = np.full(width * height, -1, np.int64)
     slot[texels] = np.arange(len(texels))
     pair_slot, pair_tri = _footprint_pairs(p_texel, width, height, slot)

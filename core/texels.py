@@ -122,7 +122,7 @@ def lift_texels(scene: Scene, samples_per_axis: int) -> tuple[TexelPoints, list[
 
 
 def footprint_texel_points(scene: Scene, target_index: int, texels: np.ndarray, per_axis: int,
-                           rng: np.random.Generator) -> TexelPoints:
+                           rng: np.random.Generator, side: float = 1.0) -> TexelPoints:
     """Stratified jittered points over the footprint of some texels of one target, on its surface.
 
     The points of :func:`core.raster.footprint_points` lifted as :func:`lift_texels` lifts the
@@ -135,12 +135,13 @@ def footprint_texel_points(scene: Scene, target_index: int, texels: np.ndarray, 
     texels : (k,) int64 unique flat texel indices y * width + x of that target's image.
     per_axis : strata per texel axis (typical 8).
     rng : the jitter's random stream.
+    side : footprint width in texels, centred on the texel (:func:`core.raster.footprint_points`).
     """
     geometry = scene.geometry
     target = scene.targets[target_index]
     local = np.flatnonzero(geometry.areas()[target.triangles] > 0)
     texel, tri_local, b = footprint_points(target.lightmap_uv[local], target.width, target.height,
-                                           texels, per_axis, rng)
+                                           texels, per_axis, rng, side)
     tri = target.triangles[local[tri_local]]
     p, n_s, n_g = _on_surface(geometry, geometry.face_normals(), tri, b)
     counts = np.bincount(texel, minlength=target.width * target.height)

@@ -120,8 +120,10 @@ def build_scene(bpy, kind: str):
 
 
 # --------------------------------------------------------------------------- bakes
-def bake_pdic(bpy, tmp_path, direct_samples: int, resolution: int = RES):
-    """Direct-only PDIC bake of every bakeable mesh through BakeJob; returns (job, seconds)."""
+def bake_pdic(bpy, tmp_path, direct_samples: int, resolution: int = RES, **overrides):
+    """Direct-only PDIC bake of every bakeable mesh through BakeJob; returns (job, seconds).
+
+    overrides : further ``BakeSettings`` fields (e.g. ``deviations``, ``threads``)."""
     from pdic.pdic_addon.properties import to_settings
 
     props = bpy.context.scene.pdic
@@ -129,7 +131,7 @@ def bake_pdic(bpy, tmp_path, direct_samples: int, resolution: int = RES):
     props.direct, props.indirect = True, False
     props.default_resolution = resolution
     props.image_format = "EXR_FLOAT"
-    settings = to_settings(props, direct_samples=direct_samples)
+    settings = to_settings(props, direct_samples=direct_samples, **overrides)
     start = time.perf_counter()
     job = job_module.BakeJob(bpy.context, settings, output_folder=str(tmp_path / "maps"),
                              cache_dir=tmp_path / "unwrap_cache")
