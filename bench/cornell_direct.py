@@ -71,7 +71,6 @@ def main(argv=None):
     size = (target.width, target.height)
     _, _, centre = comp.texel_geometry(scene)
     mask = centre & cycles_baked(obj, size)
-    np.save("/tmp/bedge_cov.npy", mask)
     pair = comp.reference_pair(obj, size, frozenset({"DIRECT"}), args.spp, work)
     reference = 0.5 * (pair[0] + pair[1])
     flat = flat_mask(reference, mask)

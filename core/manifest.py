@@ -44,7 +44,11 @@ Schema (``schema_version`` 1)
     (float, s: wall time inside Embree's traversal calls, summed over threads) and
     ``embree_share_<stage>`` (float in (0, 1]: that time over the stage's thread time,
     ``threads`` x its wall seconds; e.g. ``embree_share_refine`` for pass 3; a low share means
-    the stage is bound by Python/numpy, not by rays).
+    the stage is bound by Python/numpy, not by rays). Direct light: ``shadow_rays`` (int, at
+    the regular texel samples; ``shadow_rays_<kind>`` per light kind) and, with the
+    direct-footprint deviation, ``direct_footprint_texels`` (int, texels a shadow edge may cross),
+    ``direct_footprint_points`` (int, jittered points over their footprints) and
+    ``direct_footprint_shadow_rays`` (int, the rays those points cast).
 ``warnings`` : list of str
     Everything the bake reported but did not stop for (skipped objects, clamped
     values, degenerate triangles).

@@ -95,9 +95,10 @@ def _direct(settings):
     return result.direct["floor"][..., 0].astype(np.float64), result.stats["counters"]
 
 
-def test_hard_shadow_edge_texels_hold_their_lit_fraction(exact):
+@pytest.mark.parametrize("texel_samples", [1, 2, 4])  # 1: edges found through the neighbour test
+def test_hard_shadow_edge_texels_hold_their_lit_fraction(exact, texel_samples):
     value, fraction = exact
-    pdic, counters = _direct(DIRECT)
+    pdic, counters = _direct(replace(DIRECT, texel_samples=texel_samples))
     full = value.max()
     err = np.abs(pdic - value) / full
     edge = (fraction > 0) & (fraction < 1)
