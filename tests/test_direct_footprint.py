@@ -153,3 +153,24 @@ def test_cycles_bake_integrates_a_centred_half_texel_square(blender, exact):
     whole_err = np.sqrt((((C - whole) / value.max())[edge] ** 2).mean())
     assert half_err < 0.015, half_err
     assert whole_err > 0.06, whole_err
+
+
+def test_soft_shadow_keeps_its_mean_and_spends_the_regular_rays_on_penumbra_texels():
+    """An area light's penumbra is refined with direct_samples x 4 / 64 = 1 ray per footprint point:
+    the map's mean stays within noise and a refined texel costs what its 2 x 2 samples did."""
+    from pdic.core.scene import AreaLight
+
+    light = AreaLight("panel", LIGHT, np.array([0, 0, -1.0]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]),
+                      0.6, 0.6, "SQUARE", np.full(3, 50.0))
+    floor = quad(np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))
+    scene = _scene()
+    scene = quad_scene([floor], {"floor": (0, RES)}, [light], extra=scene.geometry.positions[2:] + scene.origin_world)
+    on = bake(scene, DIRECT)
+    off = bake(scene, replace(DIRECT, deviations=Deviations(direct_footprint=False)))
+    a, b = on.direct["floor"], off.direct["floor"]
+    counters = on.stats["counters"]
+    refined = counters["direct_footprint_texels"]
+    assert 0 < refined < RES * RES
+    assert counters["direct_footprint_shadow_rays"] <= refined * 64  # one ray per point, not 16
+    assert abs(a.mean() / b.mean() - 1.0) < 0.01
+    assert np.isfinite(a).all()
