@@ -433,7 +433,14 @@ def _footprint_pairs(p_texel, width, height, slot):
     hi_x = np.minimum(np.ceil(p_texel[:, :, 0].max(1)) - 1, width - 1).astype(np.int64)
     lo_y = np.maximum(np.floor(p_texel[:, :, 1].min(1)), 0).astype(np.int64)
     hi_y = np.minimum(np.ceil(p_texel[:, :, 1].max(1)) - 1, height - 1).astype(np.int64)
-    live = np.flatnonzero((hi_x >= lo_x) & (hi_y >= lo_y) & (np.abs(_area2(p_texel)) > MIN_AREA2))
+    live = (hi_x >= lo_x) & (hi_y >= lo_y) & (np.abs(_area2(p_texel)) > MIN_AREA2)
+    # only triangles whose box holds a chosen texel (summed-area table of the chosen texels)
+    table = np.zeros((height + 1, width + 1), np.int64)
+    table[1:, 1:] = (slot >= 0).reshape(height, width).cumsum(0).cumsum(1)
+    x0, y0 = np.clip(lo_x, 0, width), np.clip(lo_y, 0, height)
+    x1, y1 = np.clip(hi_x + 1, 0, width), np.clip(hi_y + 1, 0, height)
+    live &= table[y1, x1] - table[y0, x1] - table[y1, x0] + table[y0, x0] > 0
+    live = np.flatnonzero(live)
     slots, tris = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
     if len(live):
         for item, x0, y0, x1, y1, bw, bh in _batches(lo_x[live], lo_y[live], hi_x[live], hi_y[live]):
