@@ -149,10 +149,14 @@ DIRECT_FOOTPRINT_PER_AXIS = 8
 """Stratified jittered points per axis over an edge texel's footprint (64 points): a straight hard
 edge's lit share to ~2 % (std), about Cycles' own noise at 256 spp there (core/direct_footprint.py)."""
 DIRECT_FOOTPRINT_SIDE = 0.5
-"""Width of the footprint, texels, centred on the texel: what Cycles 5.0's bake integrates (its
-jitter spans half a texel). Measured on a 30-degree hard edge across a 32^2 plane, Cycles 1024 spp
-against the exact lit share of a centred box (tests/test_direct_footprint.py): side 1.0 rms 10.9 %,
-0.75 6.1 %, 0.5 0.26 % (= its noise), 0.25 7.7 %."""
+"""Default of ``BakeSettings.direct_footprint_side``: width of the footprint, texels, centred on the
+texel, that Cycles' bake integrates. Measured on a 30-degree hard edge across a 32^2 plane, Cycles
+256 spp against the exact lit share of a centred square (tests/test_direct_footprint.py): Blender
+5.0.1 and 5.1.2 side 1.0 rms 10.8 %, 0.75 6.1 %, 0.5 0.46 % (its jitter spans half a texel);
+Blender 5.2.3 side 1.0 0.74 %, 0.5 10.7 % (the whole texel). See
+:data:`CYCLES_WHOLE_TEXEL_FOOTPRINT`."""
+CYCLES_WHOLE_TEXEL_FOOTPRINT = (5, 2, 0)
+"""First Blender version measured to bake the whole texel (footprint side 1.0); earlier: 0.5."""
 DIRECT_EDGE_CONTRAST = 0.05
 """A texel is an edge texel when its samples' lit shares E / E_unoccluded differ by more than this,
 or its mean lit share differs by more from a neighbour's on the same surface (lit shares are 1 or

@@ -161,21 +161,14 @@ def _skip_all(out: DirectResult, key: str, n: int):
 
 
 def shade_direct(scene: Scene, caster: RayCaster, p: np.ndarray, n_shading: np.ndarray, n_geometric: np.ndarray,
-                 samples: int, seed: int, stream, executor, progress) -> tuple[np.ndarray, dict]:
+                 samples: int, seed: int, stream, executor, progress, whole: bool = False
+                 ) -> tuple[np.ndarray | DirectResult, dict]:
     """Direct irradiance (n, 3) at surface points, chunked over the executor, plus summed work counters.
 
     stream : int or sequence of ints after ``seed`` in each chunk's generator
         ``default_rng([seed, *stream, chunk])`` (core/constants.py lists the streams).
+    whole : return the merged :class:`DirectResult` (``E_unoccluded`` too) instead of its E.
     """
-    result, counters = shade_direct_result(scene, caster, p, n_shading, n_geometric, samples, seed, stream,
-                                           executor, progress)
-    return result.E, counters
-
-
-def shade_direct_result(scene: Scene, caster: RayCaster, p: np.ndarray, n_shading: np.ndarray,
-                        n_geometric: np.ndarray, samples: int, seed: int, stream, executor, progress
-                        ) -> tuple[DirectResult, dict]:
-    """:func:`shade_direct` returning the whole :class:`DirectResult` (``E_unoccluded`` too)."""
     serial = caster.serial()
     prefix = [seed, *np.atleast_1d(stream).tolist()]
 
@@ -190,4 +183,4 @@ def shade_direct_result(scene: Scene, caster: RayCaster, p: np.ndarray, n_shadin
     for light, skipped in merged.skipped.items():  # points that cast no ray toward this emitter
         counters[f"shadow_rays_skipped_points:{light}"] = skipped
     caster.rays_cast += counters["shadow_rays"]
-    return merged, counters
+    return (merged if whole else merged.E), counters

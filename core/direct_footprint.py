@@ -1,16 +1,17 @@
 """Direct light integrated over the footprint of texels a shadow edge crosses (deviation: direct-footprint).
 
-Cycles bakes a texel by jittering its sample over a footprint (the centred half-texel square), so a
-texel a hard shadow edge crosses holds the lit share of that square. ``texel_samples`` (2 x 2)
+Cycles bakes a texel by jittering its sample over a footprint (a centred square, half a texel wide
+in Blender 5.0-5.1, the whole texel from 5.2: ``BakeSettings.direct_footprint_side``), so a texel a
+hard shadow edge crosses holds the lit share of that square. ``texel_samples`` (2 x 2)
 points alias there: a texel reads 0, 1/4, ..., 1 whatever the edge's position (Cornell 256^2,
 direct light alone: 13.0 % per texel against Cycles). Here, after direct light at the regular samples:
 
 1. **Edge texels** (:func:`edge_texels`): a texel whose samples' lit shares E / E_unoccluded
-   disagree by more than ``DIRECT_EDGE_CONTRAST`` (with 1 x 1 samples also one whose mean lit
-   share differs that much from a 4-neighbour's on the same surface, centroids within
-   ``DIRECT_NEIGHBOUR_TEXELS`` texel sizes).
+   disagree by more than ``DIRECT_EDGE_CONTRAST`` (where the samples' hull is narrower than the
+   footprint, also one whose mean lit share differs that much from a 4-neighbour's on the same
+   surface, centroids within ``DIRECT_NEIGHBOUR_TEXELS`` texel sizes).
 2. **Footprint**: ``DIRECT_FOOTPRINT_PER_AXIS``^2 stratified jittered points over each edge texel's
-   footprint (the centred square of ``DIRECT_FOOTPRINT_SIDE`` = 0.5 texel that Cycles bakes),
+   footprint (the centred square of ``direct_footprint_side`` texels that Cycles bakes),
    on the triangles that cover it (:func:`core.texels.footprint_texel_points`); soft emitters take
    ``direct_samples x texel_samples^2 / points`` rays per point (at least 1), so a texel's soft
    shadow rays stay what the regular samples spent.
@@ -25,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .constants import (DIRECT_EDGE_CONTRAST, DIRECT_EDGE_FLOOR, DIRECT_FOOTPRINT_PER_AXIS, DIRECT_FOOTPRINT_SIDE,
+from .constants import (DIRECT_EDGE_CONTRAST, DIRECT_EDGE_FLOOR, DIRECT_FOOTPRINT_PER_AXIS,
                         DIRECT_NEIGHBOUR_TEXELS, STREAM_DIRECT_FOOTPRINT)
 from .direct import DirectResult, shade_direct
 from .texels import TargetRaster, TexelPoints, footprint_texel_points
@@ -50,9 +51,10 @@ def edge_texels(direct: DirectResult, points: TexelPoints, raster: TargetRaster,
     texel_size : world size of one texel (neighbours farther apart than
         ``DIRECT_NEIGHBOUR_TEXELS`` of it lie on different surfaces and are not compared).
     neighbours : compare each texel with its 4-neighbours too. Needed only when the regular
-        samples' convex hull does not hold the footprint (1 x 1 samples): with 2 x 2 or more it
-        does, so any straight edge through the footprint already splits the texel's own samples
-        (on Cornell 256^2 the neighbour test flags 3.7x the texels for 0.1 point of error).
+        samples' convex hull does not hold the footprint (1 x 1 samples, or a whole-texel
+        footprint): where it does, any straight edge through the footprint already splits the
+        texel's own samples (2 x 2 samples and the half-texel footprint on Cornell 256^2: the
+        neighbour test would flag 3.7x the texels for 0.1 point of error).
     contrast : lit-share difference that marks an edge (typical 0.05).
     """
     size = raster.width * raster.height
@@ -97,8 +99,9 @@ def footprint_direct(scene, caster, target_index: int, points: TexelPoints, rast
     scene, caster : as :func:`core.direct.shade_direct`.
     target_index : the target's index in ``scene.targets`` (``points`` are its samples).
     points, raster, texel_size : the target's samples, image and world texel size.
-    direct : :func:`core.direct.shade_direct_result` at ``points``.
-    settings : ``BakeSettings`` (``direct_samples``, ``texel_samples``, ``seed``).
+    direct : :func:`core.direct.shade_direct` (``whole=True``) at ``points``.
+    settings : ``BakeSettings`` (``direct_samples``, ``texel_samples``, ``seed``,
+        ``direct_footprint_side``).
     stream : the target's random stream id; jitter and shadow rays draw from
         ``[seed, STREAM_DIRECT_FOOTPRINT, stream, ...]``.
 
@@ -108,10 +111,12 @@ def footprint_direct(scene, caster, target_index: int, points: TexelPoints, rast
     ``direct_footprint_points``, ``direct_footprint_shadow_rays``.
     """
     E = direct.E
-    texels = edge_texels(direct, points, raster, texel_size, neighbours=settings.texel_samples < 2)
+    # the regular samples' hull spans 1 - 1/n texels: a wider footprint can hold an edge they miss
+    hull = 1.0 - 1.0 / settings.texel_samples
+    texels = edge_texels(direct, points, raster, texel_size, neighbours=settings.direct_footprint_side > hull + 1e-9)
     m = DIRECT_FOOTPRINT_PER_AXIS
     rng = np.random.default_rng([settings.seed, STREAM_DIRECT_FOOTPRINT, stream])
-    fp = footprint_texel_points(scene, target_index, texels, m, rng, DIRECT_FOOTPRINT_SIDE)
+    fp = footprint_texel_points(scene, target_index, texels, m, rng, settings.direct_footprint_side)
     counters = {"direct_footprint_texels": len(texels), "direct_footprint_points": len(fp),
                 "direct_footprint_shadow_rays": 0}
     if len(fp) == 0:

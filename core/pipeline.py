@@ -30,7 +30,7 @@ from .bake_cache import BakeCache, NoBakeCache, target_key, transport_key
 from .constants import R_MIN_FLOOR, STREAM_DIRECT
 from .density import PhotonDensity
 from .density_control import controlled_pass
-from .direct import shade_direct_result
+from .direct import shade_direct
 from .direct_footprint import footprint_direct
 from .executor import Executor, Progress, default_workers
 from .hole_records import indirect_at_texels, interpolate_filling_holes  # noqa: F401  (re-exported)
@@ -246,9 +246,9 @@ def shade_direct_at_targets(run: "_Run", targets: list[TargetTexels]) -> None:
         shaded.append(t)
         with stats.stage("direct"):
             p = t.points
-            direct, counters = shade_direct_result(run.scene, run.caster(), p.p, p.n_shading, p.n_geometric,
-                                                   settings.direct_samples, settings.seed, (STREAM_DIRECT, t.stream),
-                                                   run.executor, run.progress)
+            direct, counters = shade_direct(run.scene, run.caster(), p.p, p.n_shading, p.n_geometric,
+                                            settings.direct_samples, settings.seed, (STREAM_DIRECT, t.stream),
+                                            run.executor, run.progress, whole=True)
             E = direct.E
             if settings.deviations.direct_footprint:  # deviation: direct-footprint, docs/DEVIATIONS.md
                 E, more = footprint_direct(run.scene, run.caster(), index, p, t.raster, t.texel_size, direct,
@@ -259,7 +259,7 @@ def shade_direct_at_targets(run: "_Run", targets: list[TargetTexels]) -> None:
 
     for index, t in enumerate(targets):  # targets are rasterise_targets' list: scene.targets' order
         key = store.key("direct", run.transport(), t.key, settings.direct_samples, settings.seed,
-                        settings.deviations.direct_footprint)
+                        settings.deviations.direct_footprint, settings.direct_footprint_side)
         t.E_direct = store.memoise("direct", key, lambda: shade(index, t))
     stats.set(targets_shaded_direct=len(shaded))
 

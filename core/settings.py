@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
-from .constants import HOLE_ROUNDS
+from .constants import DIRECT_FOOTPRINT_SIDE, HOLE_ROUNDS
 
 QUALITIES = ("PREVIEW", "FINAL", "CUSTOM")
 
@@ -113,6 +113,10 @@ class BakeSettings:
     """Sub-samples per texel axis (2 = 2x2 points per texel) for rasterisation."""
     direct_samples: int = 16
     """Shadow-ray samples per texel sample point for soft lights (area, sun angle, soft radius, world)."""
+    direct_footprint_side: float = DIRECT_FOOTPRINT_SIDE
+    """Width (texels) of the centred square a shadow-edge texel's direct light is averaged over
+    (deviation direct-footprint): 0.5 matches Cycles' bake in Blender 5.0-5.1, 1.0 in 5.2 (the
+    add-on sets it from the running Blender)."""
 
     # -- run ----------------------------------------------------------------
     seed: int = 0
@@ -138,6 +142,7 @@ class BakeSettings:
             "padding": self.padding >= 0,
             "texel_samples": 1 <= self.texel_samples <= 8,
             "direct_samples": self.direct_samples >= 1,
+            "direct_footprint_side": 0.0 < self.direct_footprint_side <= 1.0,
             "threads": self.threads >= 0,
             "deviations.hole_rounds": self.deviations.hole_rounds >= 0,
         }

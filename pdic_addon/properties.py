@@ -12,6 +12,7 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
 from ..core import settings as core_settings
+from ..core.constants import CYCLES_WHOLE_TEXEL_FOOTPRINT
 
 DEFAULTS = core_settings.BakeSettings()
 DEFAULT_OUTPUT = "//pdic_lightmaps/"
@@ -131,12 +132,18 @@ def to_settings(props, quality: str | None = None, **overrides) -> core_settings
     fields = dict(
         direct=bool(props.direct), indirect=bool(props.indirect), seed=int(props.seed),
         texel_density=float(props.texel_density), default_resolution=int(props.default_resolution),
+        direct_footprint_side=cycles_footprint_side(bpy.app.version),
     )
     if quality == "CUSTOM":
         fields.update({name: getattr(props, name) for name in PRESET_FIELDS})
         fields["a"] = float(fields["a"])
     fields.update(overrides)
     return replace(base, **fields)
+
+
+def cycles_footprint_side(version: tuple) -> float:
+    """Width (texels) of the square this Blender's Cycles bake averages a texel over (0.5 before 5.2)."""
+    return 1.0 if tuple(version) >= CYCLES_WHOLE_TEXEL_FOOTPRINT else 0.5
 
 
 classes = (PDIC_SceneSettings, PDIC_ObjectSettings)
