@@ -180,3 +180,13 @@ def test_soft_shadow_keeps_its_mean_and_spends_the_regular_rays_on_penumbra_texe
     assert counters["direct_footprint_shadow_rays"] <= refined * 64  # one ray per point, not 16
     assert abs(a.mean() / b.mean() - 1.0) < 0.01
     assert np.isfinite(a).all()
+
+
+def test_footprint_leaves_the_indirect_light_bit_identical():
+    """Only the edge texels' direct values change: the cache, its lookups and the indirect map do not."""
+    settings = preset("FINAL", photons=4000, max_bounces=3, threads=1, hemisphere_theta=6, hemisphere_phi=12)
+    on = bake(_scene(), settings)
+    off = bake(_scene(), replace(settings, deviations=Deviations(direct_footprint=False)))
+    np.testing.assert_array_equal(on.indirect["floor"], off.indirect["floor"])
+    assert not np.array_equal(on.direct["floor"], off.direct["floor"])
+    assert on.stats["counters"]["direct_footprint_texels"] > 0
