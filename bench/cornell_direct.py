@@ -36,7 +36,12 @@ from test_direct_vs_cycles import flat_mask  # noqa: E402
 
 def pdic_direct(scene, footprint: bool):
     """PDIC direct light (H, W, 3) E/pi of the one target, CPU s of the bake, its counters."""
-    settings = preset("FINAL", indirect=False, threads=1, deviations=Deviations(direct_footprint=footprint))
+    import bpy
+
+    from pdic.pdic_addon.properties import cycles_footprint_side
+
+    settings = preset("FINAL", indirect=False, threads=1, deviations=Deviations(direct_footprint=footprint),
+                      direct_footprint_side=cycles_footprint_side(bpy.app.version))
     cpu = time.process_time()
     result = bake(scene, settings)
     cpu = time.process_time() - cpu
