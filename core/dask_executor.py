@@ -14,7 +14,8 @@ call becomes:
    a hundred bytes); results come back in chunk order.
 3. Progress is reported as tasks finish; a cancel cancels the outstanding tasks within
    :data:`POLL_SECONDS`; a task whose worker dies is re-run elsewhere (Dask's
-   scheduler), one that raises is retried :data:`RETRIES` times.
+   scheduler), one that raises is retried :data:`RETRIES` times, and chunks whose
+   scattered data died with a worker are re-submitted with the data scattered again.
 
 Each chunk draws its random numbers from a generator seeded by its index, so light maps
 do not depend on which worker ran which chunk: they equal the thread pool's bit for bit.
@@ -46,6 +47,8 @@ MIN_TASKS = 2
 """Calls of fewer chunks run on the coordinator (most hole-record rounds: one small chunk each)."""
 RETRIES = 2
 """Re-runs of a chunk that raised on a worker (a lost worker's chunks are re-run by the scheduler)."""
+LOST_DATA_RETRIES = 3
+"""Times a call's chunks are re-submitted after the cluster lost the data they need (scattered again)."""
 POLL_SECONDS = 0.05
 """How often the coordinator looks for finished chunks and a cancel request."""
 LOCAL_PREFIX = "local:"
@@ -138,8 +141,13 @@ class DaskExecutor(Executor):
                                   f"{install_hint()}") from e
         if scheduler.startswith(LOCAL_PREFIX):
             workers = int(scheduler[len(LOCAL_PREFIX):])
-            self._cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                         dashboard_address=":0")  # any free port
+            import dask
+
+            # Shared arrays are broadcast so that every worker keeps them; the active memory manager
+            # would drop all but one copy between calls, and a worker dying with it loses the data.
+            with dask.config.set({"distributed.scheduler.active-memory-manager.start": False}):
+                self._cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                             dashboard_address=":0")  # any free port
             return Client(self._cluster, timeout=timeout)
         try:
             return Client(scheduler, timeout=timeout)
@@ -167,20 +175,43 @@ class DaskExecutor(Executor):
         if len(chunks) < MIN_TASKS:  # one task runs no faster on a worker than here, and ships nothing here
             self.shipping.local_calls += 1
             return super().map_chunks(fn, chunks, progress)
+        start = time.perf_counter()
+        results = [None] * len(chunks)
+        pending = list(range(len(chunks)))
+        for attempt in range(LOST_DATA_RETRIES + 1):
+            blob, arrays = self._pickle(fn)
+            key = f"pdic-{self.shipping.calls}-{hashlib.blake2b(blob, digest_size=8).hexdigest()}"
+            pending = self._run(key, attempt, blob, arrays, chunks, pending, results, progress)
+            if not pending:
+                break
+            self._forget_lost_arrays()
+        else:
+            raise DaskUnavailable(f"the Dask cluster at {self.scheduler!r} lost the bake's data "
+                                  f"{LOST_DATA_RETRIES + 1} times (its workers keep dying)")
+        self._count(fn, key, blob, chunks, time.perf_counter() - start)
+        return results  # the shared arrays stay on the workers for the next call, until close()
+
+    def _run(self, key: str, attempt: int, blob: bytes, arrays: dict, chunks: list, pending: list,
+             results: list, progress: Progress | None) -> list:
+        """Run the ``pending`` chunks into ``results``; returns those whose data the cluster lost.
+
+        A worker that dies holding the only copy of scattered data (the closure or a shared array)
+        makes the scheduler cancel every task that needs it: such chunks are returned to be re-run
+        after the data is scattered again. Any other error, or a cancel, is raised.
+        """
         from distributed import as_completed
 
-        start = time.perf_counter()
-        blob, arrays = self._pickle(fn)
-        key = f"pdic-{self.shipping.calls}-{hashlib.blake2b(blob, digest_size=8).hexdigest()}"
         shared = self.client.scatter(blob, broadcast=True, hash=False)
-        futures = [self.client.submit(run_chunk, key, shared, arrays, index, chunk, key=f"{key}-{index}",
-                                      retries=RETRIES) for index, chunk in enumerate(chunks)]
-        position = {f.key: i for i, f in enumerate(futures)}
-        results = [None] * len(chunks)
+        suffix = f"-retry{attempt}" if attempt else ""
+        futures = [self.client.submit(run_chunk, key, shared, arrays, index, chunks[index],
+                                      key=f"{key}{suffix}-{index}", retries=RETRIES) for index in pending]
+        position = {f.key: index for f, index in zip(futures, pending)}
+        lost = []
+        done = len(chunks) - len(pending)
         try:
-            finished = as_completed(futures, with_results=True)
-            done = 0
-            while done < len(chunks):
+            finished = as_completed(futures, with_results=True, raise_errors=False)
+            remaining = len(futures)
+            while remaining:
                 batch = finished.next_batch(block=False)
                 if not batch:
                     if progress is not None:
@@ -188,8 +219,12 @@ class DaskExecutor(Executor):
                     time.sleep(POLL_SECONDS)
                     continue
                 for future, result in batch:
+                    remaining -= 1
+                    if future.status == "cancelled":  # this executor cancels only in the except below
+                        lost.append(position[future.key])
+                        continue
                     if future.status != "finished":
-                        future.result()  # raises the chunk's own error (or the cancel)
+                        future.result()  # raises the chunk's own error
                     results[position[future.key]] = result
                     done += 1
                 if progress is not None:
@@ -199,8 +234,13 @@ class DaskExecutor(Executor):
             raise
         finally:
             self.client.cancel([shared])
-        self._count(fn, key, blob, chunks, time.perf_counter() - start)
-        return results  # the shared arrays stay on the workers for the next call, until close()
+        return sorted(lost)
+
+    def _forget_lost_arrays(self):
+        """Drop the keys of shared arrays the cluster no longer holds, so the next pickle scatters them again."""
+        for digest, future in list(self._shared.items()):
+            if future.status != "finished":
+                del self._shared[digest]
 
     def _pickle(self, fn: Callable) -> tuple[bytes, dict]:
         """``fn`` pickled with its large arrays replaced by content keys, and {key: scattered array}."""

@@ -1,6 +1,7 @@
 """Shared test set-up: the repo as package ``pdic``, a clean Blender around every bpy test."""
 from __future__ import annotations
 
+import faulthandler
 import sys
 from pathlib import Path
 
@@ -13,12 +14,22 @@ import pdic_bootstrap  # noqa: E402
 pdic_bootstrap.load()
 
 SHARED = ROOT.parent / "shared"
+HANG_SECONDS = 900
+"""A test still running after this long is hung (the slowest takes about two minutes): print every
+thread's stack and end the run, so CI reports where it stuck instead of running into its time limit."""
 
 
 def pytest_configure(config):
     config.addinivalue_line("markers", "slow: takes tens of seconds (millions of photons, Cycles references, "
                                        "whole-scene bakes); skip with -m 'not slow' while iterating")
 SCENES = SHARED / "scenes"
+
+
+@pytest.fixture(autouse=True)
+def hang_guard():
+    faulthandler.dump_traceback_later(HANG_SECONDS, exit=True)
+    yield
+    faulthandler.cancel_dump_traceback_later()
 
 
 @pytest.fixture(autouse=True)

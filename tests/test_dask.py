@@ -122,9 +122,38 @@ def test_killing_a_worker_mid_bake_gives_the_same_light_maps(cluster):
     _assert_same_lightmaps(on_cluster, _thread_pool_bake(scene, settings))
 
 
+def test_chunks_whose_data_died_with_every_worker_run_again_with_the_data_scattered_again(cluster):
+    """Every worker dies mid-call holding the only copies of the scattered closure and array: the
+    scheduler cancels the chunks that need them, and the executor scatters both again and re-runs
+    those chunks on the restarted workers, instead of failing or waiting for ever."""
+    from pdic.core.executor import Progress
+
+    client = cluster.client
+    table = np.arange(40_000, dtype=np.float64)  # over SHARED_ARRAY_BYTES: scattered once, by key
+
+    def chunk_sum(index, chunk):
+        time.sleep(0.1)
+        return float(table[chunk].sum())
+
+    chunks = [slice(i * 2_000, (i + 1) * 2_000) for i in range(20)]
+    before = sorted(client.run(os.getpid).values())
+    killed = []
+
+    def kill_every_worker(stage, fraction, eta):
+        if not killed and 0 < fraction < 1:
+            killed.append(fraction)
+            threading.Thread(target=_exit_worker, args=(client, None), daemon=True).start()
+
+    sums = cluster.map_chunks(chunk_sum, chunks, Progress(kill_every_worker))
+    assert killed and killed[0] < 1
+    assert sums == [float(table[c].sum()) for c in chunks]
+    assert not set(before) & set(client.run(os.getpid).values())  # both died; their nannies started new ones
+
+
 def _exit_worker(client, address):
+    """Ends the worker at ``address`` (every worker when None) at once, as a crash would."""
     try:
-        client.run(os._exit, 1, workers=[address])
+        client.run(os._exit, 1, workers=None if address is None else [address])
     except OSError:  # the worker dies before it answers
         pass
 
