@@ -6,8 +6,9 @@ call becomes:
 
 1. ``fn`` is pickled once (cloudpickle: closures by value, PDIC functions by reference)
    with its large arrays (triangles, texels, photons, records) replaced by content keys:
-   each such array goes to every worker once per executor (a bake), the rest of the
-   closure (kilobytes) once per call. A worker unpickles the closure once per call, and a
+   each such array is scattered once per executor (a bake) and reaches each worker once,
+   fetched from a peer by the first task there that needs it; the rest of the closure
+   (kilobytes) once per call. A worker unpickles the closure once per call, and a
    :class:`~core.rays.RayCaster` inside it rebuilds its Embree scene at most once per
    bake and worker process (cached by a digest of the triangles).
 2. One task per chunk ships only ``(index, chunk)`` (a slice or a photon batch: about
@@ -49,6 +50,10 @@ RETRIES = 2
 """Re-runs of a chunk that raised on a worker (a lost worker's chunks are re-run by the scheduler)."""
 LOST_DATA_RETRIES = 3
 """Times a call's chunks are re-submitted after the cluster lost the data they need (scattered again)."""
+_NOT_RUN = object()
+"""A chunk's place in map_chunks' results until its result arrives (a chunk may return None)."""
+LOST_WORKER_SECONDS = 1.0
+"""Wait before scattering again after a worker died mid-scatter (the scheduler removes it on its next check)."""
 POLL_SECONDS = 0.05
 """How often the coordinator looks for finished chunks and a cancel request."""
 LOCAL_PREFIX = "local:"
@@ -124,7 +129,7 @@ class DaskExecutor(Executor):
         super().__init__(threads)
         self.scheduler = scheduler
         self.shipping = Shipping()
-        self._shared: dict = {}  # content key -> future of an array on every worker
+        self._shared: dict = {}  # content key -> future of a scattered array
         self._cluster = None
         try:
             self.client = self._connect(scheduler, timeout)
@@ -143,7 +148,7 @@ class DaskExecutor(Executor):
             workers = int(scheduler[len(LOCAL_PREFIX):])
             import dask
 
-            # Shared arrays are broadcast so that every worker keeps them; the active memory manager
+            # Workers keep the copies of shared arrays their tasks fetched; the active memory manager
             # would drop all but one copy between calls, and a worker dying with it loses the data.
             with dask.config.set({"distributed.scheduler.active-memory-manager.start": False}):
                 self._cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
@@ -176,12 +181,21 @@ class DaskExecutor(Executor):
             self.shipping.local_calls += 1
             return super().map_chunks(fn, chunks, progress)
         start = time.perf_counter()
-        results = [None] * len(chunks)
+        from distributed.comm import CommClosedError
+
+        results = [_NOT_RUN] * len(chunks)
         pending = list(range(len(chunks)))
+
         for attempt in range(LOST_DATA_RETRIES + 1):
-            blob, arrays = self._pickle(fn)
-            key = f"pdic-{self.shipping.calls}-{hashlib.blake2b(blob, digest_size=8).hexdigest()}"
-            pending = self._run(key, attempt, blob, arrays, chunks, pending, results, progress)
+            try:
+                blob, arrays = self._pickle(fn)
+                key = f"pdic-{self.shipping.calls}-{hashlib.blake2b(blob, digest_size=8).hexdigest()}"
+                pending = self._run(key, attempt, blob, arrays, chunks, pending, results, progress)
+            except CommClosedError:
+                # A worker died while the closure or an array was being scattered to it: the
+                # scheduler drops it within a heartbeat, and the next attempt scatters to the rest.
+                pending = [i for i in pending if results[i] is _NOT_RUN]
+                time.sleep(LOST_WORKER_SECONDS)
             if not pending:
                 break
             self._forget_lost_arrays()
@@ -201,7 +215,7 @@ class DaskExecutor(Executor):
         """
         from distributed import as_completed
 
-        shared = self.client.scatter(blob, broadcast=True, hash=False)
+        shared = self.client.scatter(blob, hash=False)
         suffix = f"-retry{attempt}" if attempt else ""
         futures = [self.client.submit(run_chunk, key, shared, arrays, index, chunks[index],
                                       key=f"{key}{suffix}-{index}", retries=RETRIES) for index in pending]
@@ -262,13 +276,18 @@ class DaskExecutor(Executor):
         return out.getvalue(), used
 
     def _share(self, array: np.ndarray) -> str:
-        """The content key of ``array``, scattered to every worker the first time it is seen."""
+        """The content key of ``array``, scattered the first time it is seen.
+
+        Not broadcast: the scheduler's replication (``broadcast=True``) retries a worker that dies
+        during it for ever (distributed 2026.8: it keeps the worker set it started with), which
+        hung a CI run. Workers fetch the array from a peer on first use and keep their copy.
+        """
         array = np.ascontiguousarray(array)
         h = hashlib.blake2b(f"{array.dtype.str}{array.shape}".encode(), digest_size=16)
         h.update(array.reshape(-1).view(np.uint8) if array.size else b"")
         digest = h.hexdigest()
         if digest not in self._shared:
-            self._shared[digest] = self.client.scatter(array, broadcast=True, hash=False)
+            self._shared[digest] = self.client.scatter(array, hash=False)
             self.shipping.array_bytes += array.nbytes
             self.shipping.arrays += 1
             self.shipping.array_shapes.append((array.dtype.str, array.shape))

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import pickle
+import signal
 import threading
 import time
 from pathlib import Path
@@ -148,6 +149,25 @@ def test_chunks_whose_data_died_with_every_worker_run_again_with_the_data_scatte
     assert killed and killed[0] < 1
     assert sums == [float(table[c].sum()) for c in chunks]
     assert not set(before) & set(client.run(os.getpid).values())  # both died; their nannies started new ones
+
+
+def test_a_worker_dying_while_an_array_is_shipped_neither_fails_nor_hangs_the_call(cluster):
+    """A worker killed while a new 96 MB shared array is being shipped, at delays that span the
+    shipping: Dask's broadcast scatter raised CommClosedError (seen in CI mid-bake) or retried
+    the dead worker for ever; the call must ship again to the workers left and give the sums."""
+    client = cluster.client
+    for round_, delay in enumerate((0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6)):
+        table = np.full(12_000_000, float(round_ + 1))
+
+        def chunk_sum(index, chunk, table=table):
+            return float(table[chunk].sum())
+
+        chunks = [slice(i * 1_000, (i + 1) * 1_000) for i in range(4)]
+        victim = sorted(client.run(os.getpid).values())[0]
+        threading.Timer(delay, os.kill, (victim, signal.SIGKILL)).start()
+        assert cluster.map_chunks(chunk_sum, chunks) == [1_000.0 * (round_ + 1)] * 4
+        time.sleep(0.7)  # the killer has fired
+        client.wait_for_workers(2, timeout=60)  # the nanny's new worker, before the next round
 
 
 def _exit_worker(client, address):
