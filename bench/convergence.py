@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/convergence.py [--scenes cornell,occluded,sponza] [--quality FINAL]
         [--bounces 6,64] [--density-control 0] [--photons N] [--figure5]
+        [--deviations path_visibility=1,virtual_cell_minimum=1]
 
 Needs bench/converged_references.py's output (references in bench/references/, the one-object
 core scenes in bench/results/converged/). Per bake: bias = sum PDIC / sum reference - 1 over the
@@ -56,13 +57,15 @@ def bias(images: dict, covered: dict, pair) -> float:
     return test / max(ref, 1e-30) - 1.0
 
 
-def measure(name: str, scene, pair, quality: str, overrides: dict) -> dict:
-    settings = preset(quality, threads=1, **overrides)
+def measure(name: str, scene, pair, quality: str, overrides: dict, switches: str = "") -> dict:
+    from bench.cornell_compare import with_deviations
+
+    settings = with_deviations(preset(quality, threads=1, **overrides), switches)
     t = time.process_time()
     result = bake(scene, settings)
     cpu = time.process_time() - t
     c, s = result.stats["counters"], result.stats["seconds"]
-    row = dict(scene=name, quality=quality, **overrides, cpu_s=cpu,
+    row = dict(scene=name, quality=quality, **overrides, deviations=switches, cpu_s=cpu,
                bias=bias(result.indirect, result.centre_inside, pair),
                error=bench_run.noise_corrected_error(result.indirect, result.centre_inside, pair),
                photons_stored=c.get("photons_stored"), photon_bytes=c.get("photon_bytes"),
@@ -80,6 +83,7 @@ def main(argv=None):
     ap.add_argument("--density-control", default="0")
     ap.add_argument("--photons", type=int, default=None)
     ap.add_argument("--figure5", action="store_true")
+    ap.add_argument("--deviations", default="", help="Deviations switches, e.g. path_visibility=1")
     ap.add_argument("--kernel-coverage", choices=("default", "on", "off"), default="default",
                     help="force E_k's surface-coverage kernel on or off at both qualities")
     args = ap.parse_args(argv)
@@ -100,7 +104,7 @@ def main(argv=None):
         for bounces in (int(b) for b in args.bounces.split(",")):
             for n in (int(v) for v in args.density_control.split(",")):
                 measure(name, scene, pair, args.quality,
-                        dict(max_bounces=bounces, density_control=n, photons=photons))
+                        dict(max_bounces=bounces, density_control=n, photons=photons), args.deviations)
 
 
 if __name__ == "__main__":

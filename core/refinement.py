@@ -37,7 +37,8 @@ from .virtual_rays import fill_virtual
 
 RECORD_BATCH = 256
 """Records refined per chunk: ~75k cells, a few tenths of a second of work."""
-COUNTERS = ("refine_rays_cast", "refine_probe_rays", "refine_visibility_rays", "refine_shadow_rays",
+COUNTERS = ("refine_rays_cast", "refine_probe_rays", "refine_visibility_rays", "refine_path_visibility_rays",
+            "refine_shadow_rays",
             "refine_virtual_rays", "refine_cells_virtual", "refine_cells")
 
 
@@ -132,24 +133,25 @@ def refine_batch(scene, caster, sources: GatherSources, p_k: np.ndarray, n_k: np
     t1, t2, n = local_frames(n_k)
     frames = (p_k, t1, t2, n)
     sums = CellSums(B, H)
-    probe_rays = visibility_rays = virtual = cells_virtual = 0
+    probe_rays = visibility_rays = path_rays = virtual = cells_virtual = 0
     zone_radius = np.full(B, np.inf)
     hits = []
     if reuse and sources.deviations.probe_rays:
         zone_radius, probe_rays, probe_hits = probe(caster, frames, sums, rng)
         hits.append(probe_hits)
     if reuse:
-        virtual, cells_virtual, visibility_rays = fill_virtual(caster, sources, frames, zone_lengths, zone_photons,
-                                                               zone_radius, sums, rng)
+        virtual, cells_virtual, visibility_rays, path_rays = fill_virtual(caster, sources, frames, zone_lengths,
+                                                                          zone_photons, zone_radius, sums, rng)
     empty = sums.empty_cells()  # Figure 4c: real rays for the cells no ray reached
     hits.append(trace_real(caster, frames, empty, sums, rng)[0])
     shadow_rays = shade_real(scene, caster, sources, RealHits.concatenate(hits), sums, rng)
     E, grad_r, grad_t, R = sums.irradiance_and_gradients(t1, t2, n, r_floor)
     return {
         "E": E, "grad_r": grad_r, "grad_t": grad_t, "R": R,
-        "refine_rays_cast": len(empty) + probe_rays + visibility_rays,
+        "refine_rays_cast": len(empty) + probe_rays + visibility_rays + path_rays,
         "refine_probe_rays": probe_rays,
         "refine_visibility_rays": visibility_rays,
+        "refine_path_visibility_rays": path_rays,
         "refine_shadow_rays": shadow_rays,
         "refine_virtual_rays": virtual,
         "refine_cells_virtual": cells_virtual,

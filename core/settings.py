@@ -32,6 +32,12 @@ class Deviations:
     """Pass 3: at most VIRTUAL_PER_CELL virtual rays per cell of a record, kept at random."""
     zone_visibility: bool = True
     """Pass 3: photons of a zone sector the record cannot see lend no virtual ray."""
+    path_visibility: bool = False
+    """Pass 3: a virtual ray counts only if its record sees the photon's previous hit (one occlusion ray
+    each; off by default: reuse then casts more rays than standard gathering, docs/DEVIATIONS.md)."""
+    virtual_cell_minimum: bool = False
+    """Pass 3: a cell fewer than VIRTUAL_MIN_PER_CELL virtual rays reached casts a real ray instead (off by
+    default: it exposes pass 2's dark hit shading on Sponza, docs/DEVIATIONS.md)."""
     harmonic_cell_radiance: bool = True
     """Pass 3: a cell's virtual rays are averaged as the flux-weighted harmonic mean."""
     nearest_photon_fallback: bool = True

@@ -89,3 +89,17 @@ def test_a_cached_bake_is_not_reused_for_other_deviations(tmp_path, default):
     alone, _ = _bake(FINAL, harmonic_cell_radiance=False)
     for name in alone.lightmaps:
         np.testing.assert_array_equal(switched.lightmaps[name], alone.lightmaps[name])
+
+
+def test_the_virtual_cell_minimum_sends_real_rays_into_cells_one_photon_reached(default):
+    _, on = _bake(FINAL, virtual_cell_minimum=True)
+    off = default[1]
+    assert on["refine_cells_virtual"] < off["refine_cells_virtual"]
+    assert on["refine_rays_cast"] > off["refine_rays_cast"]
+
+
+def test_path_visibility_casts_one_occlusion_ray_per_virtual_ray_and_none_when_off(default):
+    assert default[1]["refine_path_visibility_rays"] == 0
+    _, on = _bake(FINAL, path_visibility=True)
+    assert 0 < on["refine_path_visibility_rays"] <= on["refine_rays_cast"]
+    assert on["refine_virtual_rays"] <= on["refine_path_visibility_rays"]
