@@ -32,7 +32,10 @@ Schema (``schema_version`` 1)
         folder may hold the maps of several .blend files, and a partial bake keeps the
         entries of the objects it did not re-bake.
     further keys (sorted) as the caller supplies them, e.g. ``texels`` (int,
-    covered texels), ``charts`` (int), ``utilization`` (float, 0..1 of the square).
+    covered texels), ``charts`` (int), ``utilization`` (float, 0..1 of the square),
+    ``resolution_requested`` (int), ``texel_density_achieved`` (float, texels per scene unit
+    over the mesh's surface: below a requested Texel Density by what padding and packing leave
+    empty; the bake warns under half of it).
 ``settings`` : dict
     The :class:`core.settings.BakeSettings` fields (see that module for units),
     keys sorted.

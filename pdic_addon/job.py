@@ -243,6 +243,9 @@ MAIN, WORKER = "main", "worker"
 USER_ERRORS = (SceneError, uvmaps.UVMapError, writeback.WritebackError, ValueError, OSError)
 """Failures caused by the scene or the environment: reported as BakeError with their message."""
 HALF_MAX = 65504.0
+TEXEL_DENSITY_WARN = 0.5
+"""Warn when an unwrap's texels per unit fall below this fraction of the requested Texel Density:
+padding and packing leave part of every map empty (Sponza one object at 4/m: 2.7/m)."""
 """Largest finite half-float value: EXR_HALF light maps clamp brighter texels to it."""
 
 
@@ -460,9 +463,17 @@ class BakeJob:
             if conflicts:
                 self.warnings.append(f"mesh {mesh_name!r}: {conflicts} polygon corners got split UVs")
             self.uv_loops[mesh_name] = uv_loop
+            density = unwrap.achieved_texel_density(result.uv, tris.positions * self.scales[mesh_name],
+                                                    tris.triangles, result.resolution)
+            if s.texel_density > 0 and density < TEXEL_DENSITY_WARN * s.texel_density:
+                self.warnings.append(f"mesh {mesh_name!r}: its texels cover {density:.3g} per unit of the "
+                                     f"{s.texel_density:g} asked (charts fill {result.utilization:.0%} of its "
+                                     f"{result.resolution}x{result.resolution} map); raise Texel Density for "
+                                     f"finer light maps")
             for name in users:
                 self.unwraps[name] = {"charts": result.chart_count, "utilization": round(result.utilization, 4),
-                                      "unwrap_cached": result.from_cache, "resolution_requested": res}
+                                      "unwrap_cached": result.from_cache, "resolution_requested": res,
+                                      "texel_density_achieved": round(density, 4)}
             progress.update((i + 1) / len(self.meshes))
 
     # ----------------------------------------------------------------- step 3: extract (main)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from pdic.core.raster import overlapping, rasterize
-from pdic.core.unwrap import choose_resolution, loop_uvs, unwrap
+from pdic.core.unwrap import achieved_texel_density, choose_resolution, loop_uvs, unwrap
 
 
 def quad_grid(n, height_fn):
@@ -68,6 +68,9 @@ def test_flat_square_keeps_its_proportions():
     assert r.chart_count == 1
     assert extent[0] == pytest.approx(extent[1], rel=0.02)  # square stays square
     assert 60 / 64 - 0.05 < extent[0] <= 1.0  # and fills the map up to the padding
+    # a 1 x 1 square filling a 64^2 map but for its padding: just under 64 texels per unit
+    assert 64 * (60 / 64 - 0.05) < achieved_texel_density(r.uv, p, t, 64) <= 64.0
+    assert achieved_texel_density(r.uv, 2.0 * p, t, 64) == pytest.approx(achieved_texel_density(r.uv, p, t, 64) / 2)
 
 
 def test_degenerate_triangles_get_finite_uvs_inside_the_map():

@@ -137,6 +137,8 @@ def test_bake_adds_uv_map_images_and_copies_leaving_user_data_untouched(blender,
     assert set(entries) == {"Floor", "Box", "BallA", "BallB", "Wedge"}
     assert entries["Floor"]["image"] == "scene.PDIC_Floor.exr" and entries["Floor"]["uv_map"] == LIGHTMAP_UV
     assert entries["Floor"]["width"] == RES and doc["settings"]["photons"] == 4000
+    # texels per metre the unwrap gave: the 6 x 6 m floor, one chart, fills most of its RES^2 map
+    assert 0.7 * RES / 6 < entries["Floor"]["texel_density_achieved"] <= RES / 6
     assert any("Wedge" in w and "no material slots" in w for w in doc["warnings"])
 
 
