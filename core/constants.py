@@ -79,9 +79,12 @@ TINY_WALL = 1e-30
 """The nearest a wall may be: products of two such lengths stay normal float64."""
 
 # --------------------------------------------------------------------------- surface coverage (deviation: surface-coverage)
-COVERAGE_RINGS = 4
-COVERAGE_ANGLES = 8
-"""Probe points of surface_coverage: COVERAGE_RINGS equal-area rings of COVERAGE_ANGLES each."""
+COVERAGE_RINGS = 8
+COVERAGE_ANGLES = 16
+"""Probe points of surface_coverage: COVERAGE_RINGS equal-area rings of COVERAGE_ANGLES each. E_k is
+divided by the measured share, so a coarse share biases E_k up where discs cross edges: 4 x 8 probes
+left Preview +5.4 % bright on Sponza and +10.8 % on the occluded building; 8 x 16: +1.7 / +7.4 %
+(16 x 32: +1.2 / +7.9 %, at no lower error), at no measurable cost."""
 COVERAGE_LIFT = 0.05
 """Height above the tangent plane the coverage probes start from, as a fraction of the disc radius."""
 COVERAGE_FLOOR = 0.05
