@@ -279,8 +279,8 @@ class DaskExecutor(Executor):
         """The content key of ``array``, scattered the first time it is seen.
 
         Not broadcast: the scheduler's replication (``broadcast=True``) retries a worker that dies
-        during it for ever (distributed 2026.8: it keeps the worker set it started with), which
-        hung a CI run. Workers fetch the array from a peer on first use and keep their copy.
+        during it for ever (distributed 2026.8 keeps the worker set it started with), so the bake
+        would hang. Workers fetch the array from a peer on first use and keep their copy.
         """
         array = np.ascontiguousarray(array)
         h = hashlib.blake2b(f"{array.dtype.str}{array.shape}".encode(), digest_size=16)
