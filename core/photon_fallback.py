@@ -24,8 +24,7 @@ def nearest_photon_irradiance(caster, density: PhotonDensity, lighting: PhotonLi
     One visibility ray (both ends lifted as in :mod:`core.zone_visibility`) keeps a photon
     behind a thin wall from lending its light (tests/test_stability.py).
     q, n : (h, 3) hit points and unit normals facing the ray. Returns (E (h, 3) float64,
-    rays cast); E is 0 where none of the HOLE_NEIGHBOURS nearest photons is on that side or
-    the chosen one is hidden.
+    rays cast); E is 0 where none of the HOLE_NEIGHBOURS nearest photons is on that side and seen.
     """
     k = min(HOLE_NEIGHBOURS, len(density.p))
     E = np.zeros((len(q), 3))
@@ -33,12 +32,40 @@ def nearest_photon_irradiance(caster, density: PhotonDensity, lighting: PhotonLi
         return E, 0
     pick = _nearest_on_side(density, q, n, k)
     found = np.flatnonzero(pick >= 0)
-    pick = pick[found]
-    p_ph, n_ph = density.p[pick], density.n[pick].astype(np.float64)
-    lift = VISIBILITY_LIFT * np.linalg.norm(p_ph - q[found], axis=1)[:, None]
-    seen = caster.visible_between(q[found] + lift * n[found], None, p_ph + lift * n_ph, None)
-    E[found[seen]] = lighting.E_indirect(pick[seen])
-    return E, len(found)
+    seen = _sees(caster, density, q[found], n[found], pick[found])
+    E[found[seen]] = lighting.E_indirect(pick[found[seen]])
+    # The nearest photon on the hit's side is often just round a corner (a column's flank, a
+    # moulding's lip): 17 % of Sponza's holes got no indirect light from it. The nearest of the k
+    # nearest that agree and are seen lends its light instead.
+    rest = np.setdiff1d(np.arange(len(q)), found[seen])
+    E[rest], more = _nearest_seen(caster, density, lighting, q[rest], n[rest], k)
+    return E, len(found) + more
+
+
+def _sees(caster, density: PhotonDensity, q: np.ndarray, n: np.ndarray, photon: np.ndarray) -> np.ndarray:
+    """(h,) bool: does each hit see its photon? Both ends lifted as in :mod:`core.zone_visibility`."""
+    p_ph, n_ph = density.p[photon], density.n[photon].astype(np.float64)
+    lift = VISIBILITY_LIFT * np.linalg.norm(p_ph - q, axis=1)[:, None]
+    return caster.visible_between(q + lift * n, None, p_ph + lift * n_ph, None)
+
+
+def _nearest_seen(caster, density: PhotonDensity, lighting: PhotonLighting, q: np.ndarray, n: np.ndarray,
+                  k: int) -> tuple[np.ndarray, int]:
+    """(E (h, 3), rays): the indirect irradiance of the nearest of the k nearest photons that agree
+    with n and are seen from q (0 where none is); one visibility ray per agreeing candidate."""
+    E = np.zeros((len(q), 3))
+    if len(q) == 0:
+        return E, 0
+    _, near = density.tree.query(q, k=k)
+    near = np.asarray(near, np.int64).reshape(len(q), k)
+    agree = np.einsum("hkj,hj->hk", density.n[near].astype(np.float64), n) > FALLBACK_SAME_SIDE_COS
+    row, col = np.nonzero(agree)
+    seen = np.zeros_like(agree)
+    seen[row, col] = _sees(caster, density, q[row], n[row], near[row, col])
+    has = seen.any(axis=1)
+    first = np.argmax(seen, axis=1)
+    E[has] = lighting.E_indirect(near[np.flatnonzero(has), first[has]])
+    return E, len(row)
 
 
 def _nearest_on_side(density: PhotonDensity, q: np.ndarray, n: np.ndarray, k: int) -> np.ndarray:

@@ -136,6 +136,28 @@ def test_gather_hits_outside_every_record_take_the_nearest_visible_photons_light
     up = np.tile([0.0, 0, 1], (2, 1))
     beyond, near_wall = [0.8, 0.2, 0.0], [0.45, 0.0, 0.0]
     E, rays = nearest_photon_irradiance(caster, density, lighting, np.array([beyond, near_wall]), up)
-    assert rays == 2
+    assert 2 <= rays <= 2 + 8  # one ray each, then one per agreeing neighbour of the hidden one
     assert np.allclose(E[0], 7.0)  # a photon nearby on the same side and in sight
     assert np.allclose(E[1], 0.0)  # the nearest same-side photons are behind the wall
+
+
+def test_a_gather_hit_whose_nearest_photon_is_round_a_corner_takes_the_next_one_it_sees():
+    """A post 5 cm from the hit hides its nearest photon (E 5); one 30 cm away on the open side (E 9)
+    lends its light instead of none (17 % of Sponza's holes got none)."""
+    from pdic.core.photon_fallback import nearest_photon_irradiance
+    from pdic.core.photons import PhotonLighting, PhotonMap
+
+    post = quad([0.05, -0.2, -0.1], [0, 0.4, 0], [0, 0, 1.0])
+    caster = RayCaster(post, extent=2.0)
+    p = np.array([[0.1, 0.0, 0.0], [-0.3, 0.0, 0.0]], np.float32)
+    up = np.tile([0.0, 0, 1], (2, 1)).astype(np.float32)
+    photons = PhotonMap(p=p, n=up, wi=up, power=np.ones((2, 3), np.float32), d_prev=np.ones(2, np.float32),
+                        prev=np.full(2, -1, np.int32), bounce=np.ones(2, np.uint8), triangle=np.zeros(2, np.int32),
+                        albedo=np.full((2, 3), 0.5, np.float32), emitted=2)
+    lighting = PhotonLighting.zeros(2)
+    lighting.w_sum[:] = 1.0
+    lighting.E_indirect_sum[:] = np.array([[5.0] * 3, [9.0] * 3])
+    E, rays = nearest_photon_irradiance(caster, PhotonDensity(photons), lighting, np.zeros((1, 3)),
+                                        np.array([[0.0, 0, 1]]))
+    assert np.allclose(E[0], 9.0)
+    assert rays == 1 + 2
