@@ -36,9 +36,10 @@ def nearest_photon_irradiance(caster, density: PhotonDensity, lighting: PhotonLi
     E[found[seen]] = lighting.E_indirect(pick[found[seen]])
     # The nearest photon on the hit's side is often just round a corner (a column's flank, a
     # moulding's lip): 17 % of Sponza's holes got no indirect light from it. The nearest of the k
-    # nearest that agree and are seen lends its light instead.
-    rest = np.setdiff1d(np.arange(len(q)), found[seen])
-    E[rest], more = _nearest_seen(caster, density, lighting, q[rest], n[rest], k)
+    # nearest that agree and are seen lends its light instead. (Hits with no agreeing photon among
+    # the k have nothing more to try.)
+    hidden = found[~seen]
+    E[hidden], more = _nearest_seen(caster, density, lighting, q[hidden], n[hidden], k, pick[hidden])
     return E, len(found) + more
 
 
@@ -50,15 +51,17 @@ def _sees(caster, density: PhotonDensity, q: np.ndarray, n: np.ndarray, photon: 
 
 
 def _nearest_seen(caster, density: PhotonDensity, lighting: PhotonLighting, q: np.ndarray, n: np.ndarray,
-                  k: int) -> tuple[np.ndarray, int]:
+                  k: int, hidden: np.ndarray) -> tuple[np.ndarray, int]:
     """(E (h, 3), rays): the indirect irradiance of the nearest of the k nearest photons that agree
-    with n and are seen from q (0 where none is); one visibility ray per agreeing candidate."""
+    with n and are seen from q (0 where none is); one visibility ray per agreeing candidate other
+    than ``hidden`` (h,), the photon each hit already failed to see."""
     E = np.zeros((len(q), 3))
     if len(q) == 0:
         return E, 0
     _, near = density.tree.query(q, k=k)
     near = np.asarray(near, np.int64).reshape(len(q), k)
     agree = np.einsum("hkj,hj->hk", density.n[near].astype(np.float64), n) > FALLBACK_SAME_SIDE_COS
+    agree &= near != hidden[:, None]
     row, col = np.nonzero(agree)
     seen = np.zeros_like(agree)
     seen[row, col] = _sees(caster, density, q[row], n[row], near[row, col])

@@ -104,15 +104,14 @@ def choose_resolution(surface_area: float, texel_density: float, default_resolut
     return int(min(max(texels, min_resolution), max_resolution))
 
 
-def achieved_texel_density(uv: np.ndarray, positions: np.ndarray, triangles: np.ndarray, resolution: int) -> float:
+def achieved_texel_density(uv: np.ndarray, surface_area: float, resolution: int) -> float:
     """Texels per scene unit the unwrap gave, area-weighted over the mesh: sqrt(texels on triangles /
     surface area). Below the requested density when charts leave part of the map empty (padding,
     packing) or xatlas scales charts down to fit; 0 for a mesh without area.
 
-    uv : (t, 3, 2) per-corner UVs in [0, 1]; positions (V, 3), triangles (t, 3) as given to :func:`unwrap`.
+    uv : (t, 3, 2) per-corner UVs in [0, 1]; surface_area : the mesh's area, scene units squared.
     """
-    corners = positions[triangles]
-    world = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1).sum()
+    world = float(surface_area)
     e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
     uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
     if not (world > 0 and np.isfinite(world) and np.isfinite(uv_area)):

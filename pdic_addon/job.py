@@ -243,10 +243,10 @@ MAIN, WORKER = "main", "worker"
 USER_ERRORS = (SceneError, uvmaps.UVMapError, writeback.WritebackError, ValueError, OSError)
 """Failures caused by the scene or the environment: reported as BakeError with their message."""
 HALF_MAX = 65504.0
+"""Largest finite half-float value: EXR_HALF light maps clamp brighter texels to it."""
 TEXEL_DENSITY_WARN = 0.5
 """Warn when an unwrap's texels per unit fall below this fraction of the requested Texel Density:
 padding and packing leave part of every map empty (Sponza one object at 4/m: 2.7/m)."""
-"""Largest finite half-float value: EXR_HALF light maps clamp brighter texels to it."""
 
 
 class BakeJob:
@@ -463,8 +463,8 @@ class BakeJob:
             if conflicts:
                 self.warnings.append(f"mesh {mesh_name!r}: {conflicts} polygon corners got split UVs")
             self.uv_loops[mesh_name] = uv_loop
-            density = unwrap.achieved_texel_density(result.uv, tris.positions * self.scales[mesh_name],
-                                                    tris.triangles, result.resolution)
+            density = unwrap.achieved_texel_density(result.uv, tris.surface_area(self.scales[mesh_name]),
+                                                    result.resolution)
             if s.texel_density > 0 and density < TEXEL_DENSITY_WARN * s.texel_density:
                 self.warnings.append(f"mesh {mesh_name!r}: its texels cover {density:.3g} per unit of the "
                                      f"{s.texel_density:g} asked (charts fill {result.utilization:.0%} of its "
