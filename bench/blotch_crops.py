@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 from bench import run as bench_run  # noqa: E402  (loads pdic and bpy)
-from bench.cornell_compare import CONVERGED, with_deviations  # noqa: E402
+from bench.cornell_compare import CONVERGED  # noqa: E402
 
 import bpy  # noqa: E402
 from pdic.core.pipeline import bake  # noqa: E402
@@ -44,7 +44,7 @@ def main(argv=None):
     objects = [o for o in bpy.context.scene.objects if o.type == "MESH"]
     ex = extract_scene(bpy.context.evaluated_depsgraph_get(), objects, "LightMap", {o.name: (RES, RES) for o in objects})
     ref = np.load(CONVERGED)
-    maps = {label: bake(ex.scene, with_deviations(preset("FINAL"), switches)) for label, switches in VARIANTS}
+    maps = {label: bake(ex.scene, bench_run.with_deviations(preset("FINAL"), switches)) for label, switches in VARIANTS}
     fig, axes = plt.subplots(len(OBJECTS), 1 + 2 * len(VARIANTS), figsize=(3 * (1 + 2 * len(VARIANTS)), 3 * len(OBJECTS)))
     for row, name in enumerate(OBJECTS):
         cov = ref[f"cov_{name}"]

@@ -58,9 +58,7 @@ def bias(images: dict, covered: dict, pair) -> float:
 
 
 def measure(name: str, scene, pair, quality: str, overrides: dict, switches: str = "") -> dict:
-    from bench.cornell_compare import with_deviations
-
-    settings = with_deviations(preset(quality, threads=1, **overrides), switches)
+    settings = bench_run.with_deviations(preset(quality, threads=1, **overrides), switches)
     t = time.process_time()
     result = bake(scene, settings)
     cpu = time.process_time() - t

@@ -107,21 +107,9 @@ BLOCK = 8
 """Block side (texels of the --res map) of the low-frequency error."""
 
 
-def with_deviations(settings, switches: str):
-    """``settings`` with Deviations fields set from "name=1,other=0" (ints for hole_rounds)."""
-    from dataclasses import replace
-
-    values = {}
-    for item in filter(None, switches.split(",")):
-        name, value = item.split("=")
-        kind = type(getattr(settings.deviations, name))
-        values[name] = kind(int(value))
-    return replace(settings, deviations=replace(settings.deviations, **values))
-
-
 def converged(scene, objects, args):
     """PDIC at default bounces against the 64-bounce pair: indirect error per 64^2 texel, on 8x8 blocks, bias."""
-    from pdic.bench.run import block_average, noise_corrected_error
+    from pdic.bench.run import block_average, noise_corrected_error, with_deviations
 
     ref = np.load(CONVERGED)
     names = [o.name for o in objects]

@@ -213,6 +213,17 @@ def noise_corrected_error(images: dict, covered: dict, pair) -> float:
     return float(np.sqrt(max(sq.mean() - pair_noise.mean(), 0.0)) / max(mean, 1e-30))
 
 
+def with_deviations(settings, switches: str):
+    """``settings`` with Deviations fields set from "name=1,other=0" (ints for hole_rounds): the
+    benches' ``--deviations`` option."""
+    values = {}
+    for item in filter(None, switches.split(",")):
+        name, value = item.split("=")
+        kind = type(getattr(settings.deviations, name))
+        values[name] = kind(int(value))
+    return replace(settings, deviations=replace(settings.deviations, **values))
+
+
 def _bake_dict(bake) -> dict:
     return bake if isinstance(bake, dict) else dict(images=bake.images, coverage=bake.coverage)
 
