@@ -20,6 +20,7 @@ from .albedo import albedo as albedo_at
 from .direct import direct_irradiance
 from .gather_cells import CellSums
 from .photon_fallback import nearest_photon_irradiance
+from .zone_grid import spatial_order
 
 
 @dataclass(frozen=True)
@@ -91,12 +92,26 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
     """
     n_hit = caster.face_normals[triangle]
     n_hit = np.where((np.einsum("ij,ij->i", n_hit, direction) > 0)[:, None], -n_hit, n_hit)
-    E_indirect, w_sum = sources.lookup.irradiance(q, n_hit)
-    hole = np.flatnonzero(w_sum <= 0)
-    hole_rays = 0
-    if len(hole) and sources.nearest_photon_fallback:
-        E_indirect[hole], hole_rays = nearest_photon_irradiance(caster, sources.density, sources.lighting,
-                                                                q[hole], n_hit[hole])
+    E_indirect, hole_rays = _indirect_at_hits(caster, sources, q, n_hit)
     direct = direct_irradiance(scene, caster, q, n_hit, n_hit, 1, rng)
     rho = albedo_at(scene, triangle, barycentric).astype(np.float64)
     return rho * (direct.E + E_indirect) / np.pi, sum(direct.shadow_rays.values()) + hole_rays
+
+
+def _indirect_at_hits(caster, sources, q: np.ndarray, n_hit: np.ndarray) -> tuple[np.ndarray, int]:
+    """(E_indirect (h, 3), fallback rays) at hits: pass 2's records, else the nearest photon.
+
+    The hits are looked up in Morton order (:func:`~core.zone_grid.spatial_order`): the record grid
+    and the photon kd-tree are then walked along neighbouring cells and nodes.
+    """
+    order = spatial_order(q)
+    q, n_hit = q[order], n_hit[order]
+    E_sorted, w_sum = sources.lookup.irradiance(q, n_hit)
+    hole = np.flatnonzero(w_sum <= 0)
+    hole_rays = 0
+    if len(hole) and sources.nearest_photon_fallback:
+        E_sorted[hole], hole_rays = nearest_photon_irradiance(caster, sources.density, sources.lighting,
+                                                              q[hole], n_hit[hole])
+    E_indirect = np.empty_like(E_sorted)
+    E_indirect[order] = E_sorted
+    return E_indirect, hole_rays

@@ -1,0 +1,141 @@
+"""A uniform grid over the records' zones of influence: which records may accept a point (Equation 2).
+
+Record k accepts p only if ``|p - p_k| <= a R_k`` (its zone). The grid lists, per cell, every
+record whose zone's bounding box overlaps the cell; a point's candidates are its cell's list,
+tested against each zone exactly. That is a point-side lookup of fixed cost per point, built
+once per cache: pass 3 shades hits scattered over the whole scene, where a record-side search
+(one kd ball query per record that may reach the batch) paid for every record in every batch
+(Sponza: 36k ball queries per batch of 75k hits, 1.6 us per hit; the grid 0.5 us).
+
+Each point's records come out in ascending order, the order a record-side search listed them
+in, so Equation 3's per-point sums are the same to the last bit.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+CELL_PER_ZONE = 2.0
+"""Cell side / the median zone radius. Measured on Sponza's 36k pass-2 records (zones
+0.07-1.7 m, 505k gathering hits): 2.0 builds in 0.14 s with 31 entries per record and looks
+up 0.50 us per hit; 1.0 (with the cap below: 38 entries) 0.41 s and 0.48 us; 3.0 0.07 s and 0.59 us."""
+MAX_ENTRIES_PER_RECORD = 4096
+"""A zone wider than this many cells (a few huge R_k beside many small ones) coarsens the grid
+instead: memory stays O(records) whatever the spread of R_k."""
+MAX_CELLS_PER_AXIS = 1024
+"""Zones all far smaller than the scene (or of zero size) cannot make the cell index overflow."""
+
+
+DENSE_CELLS_PER_ENTRY = 4
+"""A dense cell table (8 bytes per cell) is used while cells <= this x entries, else a sorted
+table searched per point."""
+
+
+class ZoneGrid:
+    """Cells of side ``cell`` over the zones' bounding boxes; CSR lists of records per occupied cell.
+
+    p : (K, 3) float64 record positions; zone : (K,) float64 zone radii (scene units, a R_k).
+    Memory: 40 bytes per (record, cell) entry (~30 entries per record at CELL_PER_ZONE) and
+    8 bytes per cell of the dense table.
+    """
+
+    def __init__(self, p: np.ndarray, zone: np.ndarray):
+        self.p = np.asarray(p, np.float64)
+        self.zone = np.asarray(zone, np.float64)
+        self.zone2 = self.zone * self.zone
+        K = len(self.p)
+        self.empty = K == 0
+        if self.empty:
+            return
+        self.origin = (self.p - self.zone[:, None]).min(axis=0)
+        extent = float(((self.p + self.zone[:, None]).max(axis=0) - self.origin).max())
+        cell = max(CELL_PER_ZONE * float(np.median(self.zone)),
+                   2.0 * float(self.zone.max()) / (MAX_ENTRIES_PER_RECORD ** (1 / 3) - 1.0),
+                   extent / MAX_CELLS_PER_AXIS, 1e-30)
+        self.cell = cell
+        lo = np.floor((self.p - self.zone[:, None] - self.origin) / cell).astype(np.int64)
+        hi = np.floor((self.p + self.zone[:, None] - self.origin) / cell).astype(np.int64)
+        self.dims = hi.max(axis=0) + 1
+        span = hi - lo + 1
+        counts = span.prod(axis=1)
+        record = np.repeat(np.arange(K, dtype=np.int64), counts)
+        # Offset of each entry inside its record's box, unravelled over the box's span.
+        local = np.arange(len(record), dtype=np.int64) - np.repeat(np.cumsum(counts) - counts, counts)
+        s = span[record]
+        ix = lo[record, 0] + local % s[:, 0]
+        iy = lo[record, 1] + (local // s[:, 0]) % s[:, 1]
+        iz = lo[record, 2] + local // (s[:, 0] * s[:, 1])
+        key = self._key(ix, iy, iz)
+        order = np.argsort(key, kind="stable")  # stable: records ascend within a cell
+        key = key[order]
+        self.records = record[order]
+        # Each entry carries its record's centre and squared zone: the lookup reads them in runs.
+        self.entry_p = self.p[self.records]
+        self.entry_zone2 = self.zone2[self.records]
+        self.entries = len(key)
+        n_cells = int(self.dims.prod())
+        if n_cells <= DENSE_CELLS_PER_ENTRY * max(self.entries, 1):
+            # A dense table of every cell's first entry: one read per point instead of a binary search.
+            self.first = np.searchsorted(key, np.arange(n_cells + 1, dtype=np.int64))
+            self.cells = None
+        else:
+            self.cells, self.start = np.unique(key, return_index=True)
+            self.stop = np.append(self.start[1:], len(key))
+
+    def _key(self, ix, iy, iz):
+        return (iz * self.dims[1] + iy) * self.dims[0] + ix
+
+    def pairs(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, records) int64: every (point, record) with ``|q - p_k| <= zone_k``, points ascending,
+        each point's records ascending. q : (m, 3) float64."""
+        if self.empty or len(q) == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        # Non-finite or far-away points land outside the grid (-1) before the integer cast.
+        c = np.nan_to_num(np.floor((q - self.origin) / self.cell), nan=-1.0, posinf=-1.0, neginf=-1.0)
+        c = np.clip(c, -1.0, self.dims.astype(np.float64)).astype(np.int64)
+        inside = np.flatnonzero(np.all((c >= 0) & (c < self.dims), axis=1))
+        key = self._key(c[inside, 0], c[inside, 1], c[inside, 2])
+        if self.cells is None:
+            start, count = self.first[key], self.first[key + 1] - self.first[key]
+            rows_in = inside
+        else:
+            slot = np.minimum(np.searchsorted(self.cells, key), len(self.cells) - 1)
+            found = self.cells[slot] == key
+            rows_in, slot = inside[found], slot[found]
+            start, count = self.start[slot], self.stop[slot] - self.start[slot]
+        entry = np.arange(int(count.sum()), dtype=np.int64) + np.repeat(start - (np.cumsum(count) - count), count)
+        d = np.repeat(q[rows_in], count, axis=0) - self.entry_p[entry]
+        # Summed in cKDTree's order (x, y, z), so the boundary decisions match a kd-tree ball query.
+        d2 = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
+        keep = np.flatnonzero(d2 <= self.entry_zone2[entry])
+        return np.repeat(rows_in, count)[keep], self.records[entry[keep]]
+
+
+MORTON_BITS = 10
+"""Bits per axis of :func:`spatial_order`'s Morton key: 1024 steps across the points' box."""
+
+
+def spatial_order(p: np.ndarray) -> np.ndarray:
+    """(m,) int64 permutation putting points p (m, 3) in Morton (Z-curve) order.
+
+    Queries in that order walk a kd-tree or a grid along neighbouring nodes: pass 3's gathering
+    hits come in ray order, scattered over the scene, and Sponza's nearest-photon queries on them
+    ran 2.5x faster sorted (identical answers).
+    """
+    if len(p) == 0:
+        return np.zeros(0, np.int64)
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    scale = (2 ** MORTON_BITS - 1) / max(float((hi - lo).max()), 1e-300)
+    c = np.nan_to_num((p - lo) * scale, nan=0.0, posinf=0.0, neginf=0.0)
+    c = np.clip(c, 0, 2 ** MORTON_BITS - 1).astype(np.uint64)
+    key = _spread_bits(c[:, 0]) | (_spread_bits(c[:, 1]) << np.uint64(1)) | (_spread_bits(c[:, 2]) << np.uint64(2))
+    return np.argsort(key, kind="stable")
+
+
+def _spread_bits(x: np.ndarray) -> np.ndarray:
+    """Insert two zero bits between each of the low 10 bits of x (uint64)."""
+    x = x & np.uint64(0x3FF)
+    x = (x | (x << np.uint64(16))) & np.uint64(0x030000FF)
+    x = (x | (x << np.uint64(8))) & np.uint64(0x0300F00F)
+    x = (x | (x << np.uint64(4))) & np.uint64(0x030C30C3)
+    x = (x | (x << np.uint64(2))) & np.uint64(0x09249249)
+    return x
