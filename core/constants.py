@@ -31,6 +31,9 @@ STREAM_DIRECT_FOOTPRINT = 13
 ``[seed, 13, target stream, 1, chunk]`` (core/direct_footprint.py)."""
 STREAM_REFINE_HOLES = 20
 """Pass 3 on hole records of round r: ``[seed, 20 + r, batch]``."""
+STREAM_HIT_GRID = 14
+"""Shadow rays at the hit grid's vertices (deviation: hit-grid), ``[seed, 14, use, side, chunk]``:
+use 0 for pass 3, 1 for the hole records."""
 STREAM_DENSITY_CONTROL = 5
 """Section 3.4 density control: which stored photons are discarded, ``[seed, 5]``."""
 STREAM_CHR99_SUBSAMPLE = 99
@@ -174,3 +177,15 @@ fully lit when judging edges (an edge in near-darkness is not worth 64 points)."
 DIRECT_NEIGHBOUR_TEXELS = 2.0
 """Neighbouring texels are compared only if their sample centroids lie within this many texel
 sizes of each other (otherwise they are different charts that merely touch in the image)."""
+
+# --------------------------------------------------------------------------- hit grid (deviation: hit-grid)
+HIT_GRID_SPACING = 0.5
+"""Grid step over triangles / R_min (core/hit_radiance.py). Measured: see docs/DEVIATIONS.md hit-grid."""
+HIT_GRID_MAX_SIDE = 256
+"""Most grid steps along a triangle's edge (65k cells per side)."""
+HIT_GRID_MAX_CELLS = 4_000_000
+"""The step widens until the whole grid holds at most this many cells (24 bytes each)."""
+HIT_GRID_CELLS_PER_HIT = 0.125
+"""... and at most this many cells (both sides) per gathering hit expected (records x cells)."""
+HIT_GRID_DIRECT_SAMPLES = 4
+"""Shadow-ray samples per soft light at each grid cell (hits read the grid, so its noise is shared)."""

@@ -39,6 +39,7 @@ from .irradiance_cache import CacheParameters, IrradianceCache, cache_from_photo
 from .lightmaps import write_lightmaps
 from .photons import PhotonLighting, PhotonMap, trace_pass
 from .rays import RayCaster
+from .hit_radiance import HitGrid
 from .refinement import gather_sources, light_photons, refine_records
 from .scene import Scene, SceneError
 from .settings import BakeSettings
@@ -124,6 +125,8 @@ class _Run:
     _transport: str | None = None
     density: PhotonDensity | None = None
     """Pass 2's photon kd-tree when this run built it (hole records reuse it: it costs seconds)."""
+    hit_grid: HitGrid | None = None
+    """Pass 3's hit grid when this run built it (the hole records' grid reuses its direct light)."""
 
     def transport(self) -> str:
         """Hash of what light transport depends on (memo keys); empty without a cache to key."""
@@ -325,10 +328,12 @@ def build_cache(run: "_Run", photons: PhotonMap, params: CacheParameters
         progress.begin("Pass 3: refining records")
         lighting = light_photons(run.scene, run.caster(), photons, lighting, settings, run.executor, progress, stats)
         with stats.stage("refine"):
-            sources = gather_sources(density, lighting, cache, params, settings)
+            sources, grid_counters = gather_sources(density, lighting, cache, params, settings, run.scene,
+                                                    run.caster(), run.executor, progress)
             cache, counters = refine_records(run.scene, run.caster(), sources, cache, zones, settings, params,
                                              run.executor, progress)
-        stats.add(**counters)
+        stats.add(**counters, **grid_counters)
+        run.hit_grid = sources.hit_grid
     return cache, photons, lighting
 
 
@@ -340,7 +345,9 @@ def _hole_sources(run: "_Run", entry, params: CacheParameters):
     density = run.density if run.density is not None else PhotonDensity(photons)
     sources = None
     if run.settings.refine:  # hole records' gathering reads indirect light from the refined cache
-        sources = gather_sources(density, lighting, cache, params, run.settings)
+        sources, counters = gather_sources(density, lighting, cache, params, run.settings, run.scene, run.caster(),
+                                           run.executor, run.progress, use=1, direct_from=run.hit_grid)
+        run.stats.add(**{f"holes_{key}": value for key, value in counters.items()})
     return density, sources
 
 

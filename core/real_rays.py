@@ -90,16 +90,33 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
     (w_sum = 0) E_indirect comes from :func:`~core.photon_fallback.nearest_photon_irradiance`
     (deviation: nearest-photon-fallback): on Sponza a third of the hits are such holes.
     """
+    rho = albedo_at(scene, triangle, barycentric).astype(np.float64)
     n_hit = caster.face_normals[triangle]
     n_hit = np.where((np.einsum("ij,ij->i", n_hit, direction) > 0)[:, None], -n_hit, n_hit)
-    E_indirect, hole_rays = _indirect_at_hits(caster, sources, q, n_hit)
+    if sources.hit_grid is None:
+        E, rays = _irradiance_at_hits(scene, caster, sources, q, n_hit, rng)
+        return rho * E / np.pi, rays
+    # deviation: hit-grid, docs/DEVIATIONS.md: the hit's grid cell, if the hit sees its centroid.
+    back = np.einsum("ij,ij->i", caster.face_normals[triangle], n_hit) < 0
+    E, centroid = sources.hit_grid.lookup(scene.geometry.positions, triangle, barycentric, back)
+    own = np.flatnonzero(~caster.sides_visible(q, n_hit, centroid, n_hit))
+    rays = len(q)
+    if len(own):
+        E[own], own_rays = _irradiance_at_hits(scene, caster, sources, q[own], n_hit[own], rng)
+        rays += own_rays
+    return rho * E / np.pi, rays
+
+
+def _irradiance_at_hits(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng: np.random.Generator
+                        ) -> tuple[np.ndarray, int]:
+    """(E_direct + E_indirect (h, 3), rays spent) at hits q facing n_hit (h, 3), each on its own."""
+    E_indirect, hole_rays = indirect_at_hits(caster, sources, q, n_hit)
     direct = direct_irradiance(scene, caster, q, n_hit, n_hit, 1, rng)
-    rho = albedo_at(scene, triangle, barycentric).astype(np.float64)
-    return rho * (direct.E + E_indirect) / np.pi, sum(direct.shadow_rays.values()) + hole_rays
+    return direct.E + E_indirect, sum(direct.shadow_rays.values()) + hole_rays
 
 
-def _indirect_at_hits(caster, sources, q: np.ndarray, n_hit: np.ndarray) -> tuple[np.ndarray, int]:
-    """(E_indirect (h, 3), fallback rays) at hits: pass 2's records, else the nearest photon.
+def indirect_at_hits(caster, sources, q: np.ndarray, n_hit: np.ndarray) -> tuple[np.ndarray, int]:
+    """(E_indirect (h, 3), fallback rays) at hits facing n_hit (h, 3): pass 2's records, else the nearest photon.
 
     The hits are looked up in Morton order (:func:`~core.zone_grid.spatial_order`): the record grid
     and the photon kd-tree are then walked along neighbouring cells and nodes.

@@ -16,21 +16,22 @@ the cache, mapped on the executor.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .constants import (CELL_DISTANCE_FLOOR, PHOTON_DIRECT_SAMPLES, PROBE_RAYS, STREAM_PHOTON_DIRECT,
-                        STREAM_REFINE, VIRTUAL_RADIUS)
+from .constants import (CELL_DISTANCE_FLOOR, PHOTON_DIRECT_SAMPLES, PROBE_RAYS, STREAM_HIT_GRID,
+                        STREAM_PHOTON_DIRECT, STREAM_REFINE, VIRTUAL_RADIUS)
 from .density import PhotonDensity
 from .direct import shade_direct
 from .executor import Executor, Progress, slices
 from .gather_cells import CellSums, limit_gradients
 from .hemisphere import Hemisphere, local_frames
+from .hit_radiance import HitGrid, build_hit_grid
 from .interpolation import CacheLookup
 from .irradiance_cache import CacheParameters, IrradianceCache, Zones, neighbour_clamp
 from .photons import PhotonLighting
-from .real_rays import RealHits, shade_real, trace_real
+from .real_rays import RealHits, indirect_at_hits, shade_real, trace_real
 from .record_walls import open_walls, wall_distances
 from .settings import BakeSettings, Deviations
 from .virtual_rays import fill_virtual
@@ -50,6 +51,7 @@ class GatherSources:
     lighting : the photons' section 3.1 sums from pass 2 (+ E_direct when paths are reused).
     lookup : Equation 3 over the records gathered so far, without gradients: E_indirect at hits.
     radiance_out : (N, 3) float64 radiance leaving each photon (virtual rays), None without reuse.
+    hit_grid : irradiance over every triangle that hits read instead (deviation: hit-grid), or None.
     """
 
     density: PhotonDensity
@@ -57,6 +59,7 @@ class GatherSources:
     lookup: CacheLookup
     radiance_out: np.ndarray | None
     deviations: Deviations
+    hit_grid: HitGrid | None = None
 
     @property
     def nearest_photon_fallback(self) -> bool:
@@ -64,11 +67,26 @@ class GatherSources:
 
 
 def gather_sources(density: PhotonDensity, lighting: PhotonLighting, records: IrradianceCache,
-                   params: CacheParameters, settings: BakeSettings) -> GatherSources:
-    """Pass 3's read-only inputs: records interpolated at hits, radiance leaving each photon."""
+                   params: CacheParameters, settings: BakeSettings, scene=None, caster=None,
+                   executor: Executor | None = None, progress: Progress | None = None, use: int = 0,
+                   direct_from: HitGrid | None = None) -> tuple[GatherSources, dict]:
+    """Pass 3's read-only inputs: records interpolated at hits, radiance leaving each photon, and
+    (deviation: hit-grid, given the scene) the grid of irradiance hits read; plus its counters.
+
+    use : 0 for pass 3, 1 for the hole records (the random stream of the grid's shadow rays).
+    direct_from : pass 3's grid, whose direct light the hole records' grid reuses.
+    """
     radiance_out = lighting.radiance_out(density.photons.albedo) if settings.reuse_photon_paths else None
-    return GatherSources(density, lighting, CacheLookup(records, params.a, use_gradients=False), radiance_out,
-                         settings.deviations)
+    sources = GatherSources(density, lighting, CacheLookup(records, params.a, use_gradients=False), radiance_out,
+                            settings.deviations)
+    if not settings.deviations.hit_grid or scene is None:
+        return sources, {}
+    serial = caster.serial()
+    hits = len(records) * settings.hemisphere_theta * settings.hemisphere_phi
+    grid, counters = build_hit_grid(scene, caster, lambda q, n: indirect_at_hits(serial, sources, q, n),
+                                    params.R_min, hits, settings.seed, [STREAM_HIT_GRID, use], executor, progress,
+                                    direct_from)
+    return replace(sources, hit_grid=grid), counters
 
 
 def light_photons(scene, caster, photons, lighting: PhotonLighting, settings: BakeSettings, executor: Executor,

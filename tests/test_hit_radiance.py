@@ -1,0 +1,88 @@
+"""The hit grid (deviation: hit-grid): every gathering hit reads the irradiance of its triangle's cell."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from pdic.core.executor import make_executor
+from pdic.core.hit_radiance import HitGrid, build_hit_grid, grid_points, grid_sides
+from pdic.core.pipeline import bake
+from pdic.core.rays import RayCaster
+from pdic.core.scene import PointLight
+from pdic.core.settings import Deviations, preset
+
+from scenes import box_faces, quad, quad_scene
+
+
+def _barycentric(positions, triangle, q):
+    e1 = positions[triangle, 1] - positions[triangle, 0]
+    e2 = positions[triangle, 2] - positions[triangle, 0]
+    m = np.stack([e1, e2], axis=2)
+    return np.array([np.linalg.lstsq(m[k], q[k] - positions[triangle[k], 0], rcond=None)[0] for k in range(len(q))])
+
+
+def test_each_cell_centroid_reads_its_own_cell_on_either_side():
+    rng = np.random.default_rng(0)
+    positions = rng.random((40, 3, 3))
+    L = rng.integers(1, 9, 40)
+    offset, triangle, q = grid_points(positions, L)
+    assert len(q) == int((L * L).sum())
+    uv = _barycentric(positions, triangle, q)
+    assert uv.min() > 0 and uv.sum(axis=1).max() < 1  # centroids lie inside their triangle
+    E = np.zeros((2, len(q), 3), np.float32)
+    E[0, :, 0] = np.arange(len(q))
+    E[1, :, 1] = np.arange(len(q))
+    grid = HitGrid(L, offset, E, E)
+    front, centroid = grid.lookup(positions, triangle, uv, np.zeros(len(q), bool))
+    back, _ = grid.lookup(positions, triangle, uv, np.ones(len(q), bool))
+    assert np.allclose(centroid, q)
+    assert np.array_equal(front[:, 0], np.arange(len(q))) and not front[:, 1].any()
+    assert np.array_equal(back[:, 1], np.arange(len(q))) and not back[:, 0].any()
+    # Hits on a triangle's edges and corners (u + v = 1, u = 0, v = 0) land in one of its cells.
+    edge = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [0.5, 0.5], [1.0 + 1e-9, -1e-9]])
+    tri = np.zeros(len(edge), np.int64)
+    cell = grid.lookup(positions, tri, edge, np.zeros(len(edge), bool))[0][:, 0]
+    assert np.all((cell >= offset[0]) & (cell < offset[0] + L[0] ** 2))
+
+
+def test_the_grid_is_kept_within_its_budget():
+    positions = np.array([[[0, 0, 0], [10.0, 0, 0], [0, 10.0, 0]]] * 3)
+    L = grid_sides(positions, 0.01, budget=3000)
+    assert int((L * L).sum()) <= 3000 and L.min() >= 1
+
+
+def test_a_cell_holds_the_direct_light_of_its_centroid_and_nothing_behind():
+    """A floor 1 m under a 100 W point light: E = P / (4 pi d^2) cos at each cell's centroid."""
+    lamp = PointLight("lamp", np.array([0.5, 0.5, 1.0]), np.full(3, 100.0))
+    scene = quad_scene([quad([0, 0, 0], [1, 0, 0], [0, 1, 0])], {"floor": (0, 8)}, [lamp])
+    caster = RayCaster(scene.geometry.positions, scene.extent, make_executor(1), scene.geometry.transmission)
+
+    def no_indirect(q, n):
+        return np.zeros((len(q), 3)), 0
+
+    grid, counters = build_hit_grid(scene, caster, no_indirect, R_min=0.1, hits=10_000, seed=0, stream=[14, 0],
+                                    executor=make_executor(1), progress=None)
+    assert counters["hit_grid_cells"] == grid.E.shape[1] > 2
+    offset, triangle, q = grid_points(scene.geometry.positions, grid.side)
+    n = caster.face_normals[triangle]
+    light = scene.lights[0].position
+    to_light = light - q
+    d = np.linalg.norm(to_light, axis=1)
+    facing = np.einsum("ij,ij->i", to_light / d[:, None], n)
+    expected = 100.0 / (4 * np.pi * d ** 2) * np.abs(facing)
+    lit = 0 if (facing > 0).all() else 1  # the side that faces the lamp
+    assert np.allclose(grid.E[lit, :, 0], expected, rtol=1e-5)
+    assert not grid.E[1 - lit].any()
+
+
+def test_the_switch_builds_the_grid_and_the_hole_records_reuse_its_direct_light():
+    lamp = PointLight("lamp", np.array([0.5, 0.5, 0.8]), np.full(3, 100.0))
+    scene = quad_scene(box_faces(), {"floor": (0, 16), "back": (1, 16)}, [lamp])
+    final = preset("FINAL", photons=4000, max_bounces=3, threads=1, hemisphere_theta=6, hemisphere_phi=12)
+    on = bake(scene, final).stats["counters"]
+    off = bake(scene, replace(final, deviations=Deviations(hit_grid=False))).stats["counters"]
+    assert on["hit_grid_cells"] > 0
+    # The hole records' grid reads the refined records but reuses pass 3's direct light.
+    assert on["holes_hit_grid_cells"] == on["hit_grid_cells"] and on["holes_hit_grid_shadow_rays"] == 0
+    assert "hit_grid_cells" not in off and "holes_hit_grid_cells" not in off
