@@ -3,15 +3,15 @@
 docs/DEVIATIONS.md, switch ``Deviations.hit_grid``. A real ray's radiance is albedo x
 (E_direct + E_indirect) / pi at its hit (:mod:`core.real_rays`). Computed per hit, that costs a
 record lookup, a nearest-photon fallback and a shadow ray per light: ~4.5 us per hit in numpy
-against ~0.3 us for the ray itself, and Sponza's Final bake shades ~33 M hits. Irradiance over a
-surface changes on the scale of the cache's records, so it is computed once per cell of a
-grid over each triangle (L^2 similar sub-triangles, L ~ the longest edge / (HIT_GRID_SPACING x
-R_min)), at the cell's centroid and on both sides, and a hit that sees its cell's centroid reads the cell (one occlusion ray: a triangle may run
-under a thin wall, and the cell's far side must not light the near one; hits that do not see it
-are shaded on their own). Centroids, not
-grid vertices: a vertex on a triangle's edge sits where a neighbouring surface meets it, and on
-Sponza (4 texels/m) grid vertices gave an indirect bias of -2.3 %, centroids -1.7 % (per hit: -1.5 %). Albedo stays
-per hit (textures keep their detail). Each centroid is shaded as a hit was.
+against ~0.3 us for the ray itself, and Sponza's Final bake at 16 texels/m shades ~33 M hits.
+Irradiance over a surface changes on the scale of the cache's records, so it is computed once per
+cell of a grid over each triangle (L^2 similar sub-triangles, L ~ the longest edge /
+(HIT_GRID_SPACING x R_min)), at the cell's centroid and on both sides. A hit that sees its cell's
+centroid reads the cell (one occlusion ray: a triangle may run under a thin wall, and the cell's
+far side must not light the near one); a hit that does not is shaded on its own. Centroids, not
+grid vertices: a vertex on a triangle's edge sits where a neighbouring surface meets it (Sponza at
+4 texels/m: indirect bias -2.3 % from vertices, -1.7 % from centroids, -1.5 % per hit). Albedo
+stays per hit, so textures keep their detail.
 """
 from __future__ import annotations
 

@@ -330,6 +330,7 @@ def build_cache(run: "_Run", photons: PhotonMap, params: CacheParameters
         with stats.stage("refine"):
             sources, grid_counters = gather_sources(density, lighting, cache, params, settings, run.scene,
                                                     run.caster(), run.executor, progress)
+            progress.begin("Pass 3: refining records")
             cache, counters = refine_records(run.scene, run.caster(), sources, cache, zones, settings, params,
                                              run.executor, progress)
         stats.add(**counters, **grid_counters)

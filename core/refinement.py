@@ -81,6 +81,8 @@ def gather_sources(density: PhotonDensity, lighting: PhotonLighting, records: Ir
                             settings.deviations)
     if not settings.deviations.hit_grid or scene is None:
         return sources, {}
+    if progress is not None:
+        progress.begin(("Pass 3" if use == 0 else "Hole records") + ": irradiance over the hit grid")
     serial = caster.serial()
     hits = len(records) * settings.hemisphere_theta * settings.hemisphere_phi
     grid, counters = build_hit_grid(scene, caster, lambda q, n: indirect_at_hits(serial, sources, q, n),
