@@ -88,7 +88,9 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
 
     ``sources`` : :class:`core.refinement.GatherSources`. Where no record accepts the hit
     (w_sum = 0) E_indirect comes from :func:`~core.photon_fallback.nearest_photon_irradiance`
-    (deviation: nearest-photon-fallback): on Sponza a third of the hits are such holes.
+    (deviation: nearest-photon-fallback): on Sponza a third of the hits are such holes. With
+    ``sources.hit_grid`` (deviation: hit-grid) a hit that sees its grid cell's centroid reads
+    E_direct + E_indirect from the cell (one occlusion ray); the rest are shaded as above.
     """
     rho = albedo_at(scene, triangle, barycentric).astype(np.float64)
     n_hit = caster.face_normals[triangle]
