@@ -32,7 +32,7 @@ STREAM_DIRECT_FOOTPRINT = 13
 STREAM_REFINE_HOLES = 20
 """Pass 3 on hole records of round r: ``[seed, 20 + r, batch]``."""
 STREAM_HIT_GRID = 14
-"""Shadow rays at the hit grid's vertices (deviation: hit-grid), ``[seed, 14, use, side, chunk]``:
+"""Shadow rays at the hit grid's cell centroids (deviation: hit-grid), ``[seed, 14, use, side, chunk]``:
 use 0 for pass 3, 1 for the hole records."""
 STREAM_DENSITY_CONTROL = 5
 """Section 3.4 density control: which stored photons are discarded, ``[seed, 5]``."""
@@ -184,7 +184,7 @@ HIT_GRID_SPACING = 0.5
 HIT_GRID_MAX_SIDE = 256
 """Most grid steps along a triangle's edge (65k cells per side)."""
 HIT_GRID_MAX_CELLS = 4_000_000
-"""The step widens until the whole grid holds at most this many cells (24 bytes each)."""
+"""The step widens until the whole grid holds at most this many cells (48 bytes each)."""
 HIT_GRID_CELLS_PER_HIT = 0.125
 """... and at most this many cells (both sides) per gathering hit expected (records x cells)."""
 HIT_GRID_DIRECT_SAMPLES = 4

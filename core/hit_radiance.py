@@ -56,11 +56,17 @@ class HitGrid:
         i = np.minimum(i, L - 1 - j)  # a hit on the far edge (u + v = 1) rounds into the row's last cell
         upper = (x - i) + (y - j) > 1.0
         cell = self.offset[triangle] + j * (2 * L - j) + 2 * i + upper
-        third = np.where(upper, 2 / 3, 1 / 3)
-        p0 = positions[triangle, 0]
-        centroid = (p0 + ((i + third) / L)[:, None] * (positions[triangle, 1] - p0)
-                    + ((j + third) / L)[:, None] * (positions[triangle, 2] - p0))
-        return self.E[back.astype(np.int64), cell].astype(np.float64), centroid
+        return self.E[back.astype(np.int64), cell].astype(np.float64), _centroids(positions, triangle, i, j, upper, L)
+
+
+def _centroids(positions: np.ndarray, triangle: np.ndarray, i: np.ndarray, j: np.ndarray, upper: np.ndarray,
+               L: np.ndarray) -> np.ndarray:
+    """(n, 3) world centroids of cells (i, j, upper) of side-L grids on their triangles: a lower cell's
+    at barycentric ((i + 1/3) / L, (j + 1/3) / L), an upper cell's at ((i + 2/3) / L, (j + 2/3) / L)."""
+    third = np.where(upper, 2 / 3, 1 / 3)
+    p0 = positions[triangle, 0]
+    return (p0 + ((i + third) / L)[:, None] * (positions[triangle, 1] - p0)
+            + ((j + third) / L)[:, None] * (positions[triangle, 2] - p0))
 
 
 def grid_sides(positions: np.ndarray, spacing: float, budget: int) -> np.ndarray:
@@ -92,11 +98,7 @@ def grid_points(positions: np.ndarray, L: np.ndarray) -> tuple[np.ndarray, np.nd
     j = np.where(j * (2 * Lc - j) > k, j - 1, j)
     j = np.where((j + 1) * (2 * Lc - j - 1) <= k, j + 1, j)
     rest = k - j * (2 * Lc - j)
-    i, upper = rest // 2, rest % 2
-    u = (i + np.where(upper == 1, 2 / 3, 1 / 3)) / Lc
-    v = (j + np.where(upper == 1, 2 / 3, 1 / 3)) / Lc
-    p0, p1, p2 = positions[triangle, 0], positions[triangle, 1], positions[triangle, 2]
-    return offset, triangle, p0 + u[:, None] * (p1 - p0) + v[:, None] * (p2 - p0)
+    return offset, triangle, _centroids(positions, triangle, rest // 2, j, rest % 2 == 1, Lc)
 
 
 def build_hit_grid(scene, caster, indirect_at, R_min: float, hits: int, seed: int, stream, executor, progress,

@@ -33,13 +33,13 @@ from .density_control import controlled_pass
 from .direct import shade_direct
 from .direct_footprint import footprint_direct
 from .executor import Executor, Progress, default_workers
+from .hit_radiance import HitGrid
 from .hole_records import indirect_at_texels, interpolate_filling_holes  # noqa: F401  (re-exported)
 from .interpolation import CacheLookup
 from .irradiance_cache import CacheParameters, IrradianceCache, cache_from_photons
 from .lightmaps import write_lightmaps
 from .photons import PhotonLighting, PhotonMap, trace_pass
 from .rays import RayCaster
-from .hit_radiance import HitGrid
 from .refinement import gather_sources, light_photons, refine_records
 from .scene import Scene, SceneError
 from .settings import BakeSettings

@@ -93,13 +93,13 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
     E_direct + E_indirect from the cell (one occlusion ray); the rest are shaded as above.
     """
     rho = albedo_at(scene, triangle, barycentric).astype(np.float64)
-    n_hit = caster.face_normals[triangle]
-    n_hit = np.where((np.einsum("ij,ij->i", n_hit, direction) > 0)[:, None], -n_hit, n_hit)
+    n_face = caster.face_normals[triangle]
+    back = np.einsum("ij,ij->i", n_face, direction) > 0  # the ray reached the face's back side
+    n_hit = np.where(back[:, None], -n_face, n_face)
     if sources.hit_grid is None:
         E, rays = _irradiance_at_hits(scene, caster, sources, q, n_hit, rng)
         return rho * E / np.pi, rays
     # deviation: hit-grid, docs/DEVIATIONS.md: the hit's grid cell, if the hit sees its centroid.
-    back = np.einsum("ij,ij->i", caster.face_normals[triangle], n_hit) < 0
     E, centroid = sources.hit_grid.lookup(scene.geometry.positions, triangle, barycentric, back)
     own = np.flatnonzero(~caster.sides_visible(q, n_hit, centroid, n_hit))
     rays = len(q)

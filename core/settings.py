@@ -41,8 +41,8 @@ class Deviations:
     harmonic_cell_radiance: bool = True
     """Pass 3: a cell's virtual rays are averaged as the flux-weighted harmonic mean."""
     hit_grid: bool = True
-    """Pass 3: a gathering hit reads E_direct + E_indirect interpolated over a grid on its triangle,
-    computed once per grid vertex, instead of a record lookup and shadow rays of its own."""
+    """Pass 3: a gathering hit that sees its cell's centroid reads E_direct + E_indirect from a grid of
+    cells on its triangle, computed once per cell, instead of a record lookup and shadow rays of its own."""
     nearest_photon_fallback: bool = True
     """Pass 3: a gathering hit no record accepts takes the nearest visible photon's irradiance."""
     gradient_limiting: bool = True

@@ -23,8 +23,6 @@ MAX_ENTRIES_PER_RECORD = 4096
 instead: memory stays O(records) whatever the spread of R_k."""
 MAX_CELLS_PER_AXIS = 1024
 """Zones all far smaller than the scene (or of zero size) cannot make the cell index overflow."""
-
-
 DENSE_CELLS_PER_ENTRY = 4
 """A dense cell table (8 bytes per cell) is used while cells <= this x entries, else a sorted
 table searched per point."""
@@ -39,21 +37,20 @@ class ZoneGrid:
     """
 
     def __init__(self, p: np.ndarray, zone: np.ndarray):
-        self.p = np.asarray(p, np.float64)
-        self.zone = np.asarray(zone, np.float64)
-        self.zone2 = self.zone * self.zone
-        K = len(self.p)
+        p = np.asarray(p, np.float64)
+        zone = np.asarray(zone, np.float64)
+        K = len(p)
         self.empty = K == 0
         if self.empty:
             return
-        self.origin = (self.p - self.zone[:, None]).min(axis=0)
-        extent = float(((self.p + self.zone[:, None]).max(axis=0) - self.origin).max())
-        cell = max(CELL_PER_ZONE * float(np.median(self.zone)),
-                   2.0 * float(self.zone.max()) / (MAX_ENTRIES_PER_RECORD ** (1 / 3) - 1.0),
+        self.origin = (p - zone[:, None]).min(axis=0)
+        extent = float(((p + zone[:, None]).max(axis=0) - self.origin).max())
+        cell = max(CELL_PER_ZONE * float(np.median(zone)),
+                   2.0 * float(zone.max()) / (MAX_ENTRIES_PER_RECORD ** (1 / 3) - 1.0),
                    extent / MAX_CELLS_PER_AXIS, 1e-30)
         self.cell = cell
-        lo = np.floor((self.p - self.zone[:, None] - self.origin) / cell).astype(np.int64)
-        hi = np.floor((self.p + self.zone[:, None] - self.origin) / cell).astype(np.int64)
+        lo = np.floor((p - zone[:, None] - self.origin) / cell).astype(np.int64)
+        hi = np.floor((p + zone[:, None] - self.origin) / cell).astype(np.int64)
         self.dims = hi.max(axis=0) + 1
         span = hi - lo + 1
         counts = span.prod(axis=1)
@@ -69,8 +66,8 @@ class ZoneGrid:
         key = key[order]
         self.records = record[order]
         # Each entry carries its record's centre and squared zone: the lookup reads them in runs.
-        self.entry_p = self.p[self.records]
-        self.entry_zone2 = self.zone2[self.records]
+        self.entry_p = p[self.records]
+        self.entry_zone2 = (zone * zone)[self.records]
         self.entries = len(key)
         n_cells = int(self.dims.prod())
         if n_cells <= DENSE_CELLS_PER_ENTRY * max(self.entries, 1):
