@@ -20,18 +20,26 @@ UVs follow Blender: u right, v up, in [0, 1]; image row 0 is v = 0.
 """
 from __future__ import annotations
 
+import json
 import math
+import sys
+import tempfile
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import xatlas
 
 from .dilate import dilate
+from .unwrap import CHILD_SECONDS_BASE, CHILD_SECONDS_PER_TRIANGLE, UnwrapError, describe_exit, run_child
 from .xatlas_charts import GOOD_FILL, MAX_PACK_ATTEMPTS, pack_options
 
 WINDOW_MARGIN = 1
 """Texels around an object's charts inside its window: conservative rasterisation touches the
 texels a chart's edge crosses, which lie within one texel of the chart's UV bounding box."""
+PACK_ATTEMPTS = 2
+"""Child processes tried before the packing is given up: xatlas's packing hung once (every
+thread waiting on a futex) in one of thousands of runs; a fresh process packed the same input."""
 
 
 # --------------------------------------------------------------------------- inputs and results
@@ -141,8 +149,13 @@ class AtlasLayout:
 
 
 # --------------------------------------------------------------------------- packing
-def pack_atlases(inputs: list, size: int, padding: int, texels_per_unit: float = 0.0) -> AtlasLayout:
+def pack_atlases(inputs: list, size: int, padding: int, texels_per_unit: float = 0.0, *,
+                 in_process: bool = False, cancelled=None) -> AtlasLayout:
     """Pack every object's charts into as few ``size x size`` atlases as fit.
+
+    xatlas runs in a child process (as :func:`core.unwrap.unwrap`'s charting does): a crash or a
+    hang there cannot take Blender down; a child with no answer within the unwrap's time limit
+    for as many triangles is killed and the packing tried again (:data:`PACK_ATTEMPTS`).
 
     Parameters
     ----------
@@ -151,6 +164,9 @@ def pack_atlases(inputs: list, size: int, padding: int, texels_per_unit: float =
     padding : texels between charts (typical 2, as for per-object light maps).
     texels_per_unit : texels per scene unit for ``density_scale`` 1 (typical 4-64
         for metre scenes); 0 chooses the largest density that fits one atlas.
+    in_process : run xatlas in this process (no crash protection; the child itself, tools).
+    cancelled : called while the child runs; returning True kills it and raises
+        ``core.executor.Cancelled``.
 
     Returns
     -------
@@ -160,6 +176,7 @@ def pack_atlases(inputs: list, size: int, padding: int, texels_per_unit: float =
     ------
     ValueError : bad sizes, duplicate names, or an object that alone does not fit
         one atlas at the requested density (the message names it).
+    UnwrapError : every child crashed or hung.
     """
     if not inputs:
         raise ValueError("atlas: nothing to pack (no objects)")
@@ -170,6 +187,8 @@ def pack_atlases(inputs: list, size: int, padding: int, texels_per_unit: float =
         raise ValueError(f"atlas: size {size} with padding {padding} leaves no room for charts")
     if not (math.isfinite(texels_per_unit) and texels_per_unit >= 0):
         raise ValueError(f"atlas: texels_per_unit {texels_per_unit!r} must be >= 0 (0 = fit one atlas)")
+    if not in_process:
+        return _pack_in_child(inputs, size, padding, texels_per_unit, cancelled)
     if texels_per_unit == 0:
         texels_per_unit = _fit_one_atlas(inputs, size, padding)
         groups = [list(range(len(inputs)))]
@@ -181,6 +200,71 @@ def pack_atlases(inputs: list, size: int, padding: int, texels_per_unit: float =
         for j, k in enumerate(group):
             placements[k] = _placement(inputs[k], atlas, j, a, size)
     return AtlasLayout(int(size), int(padding), float(texels_per_unit), len(groups), tuple(placements))
+
+
+def _pack_in_child(inputs: list, size: int, padding: int, texels_per_unit: float, cancelled) -> AtlasLayout:
+    """:func:`pack_atlases` in a child process (``core/unwrap_worker.py``, task ``atlas``)."""
+    request, arrays = pack_request(inputs, size, padding, texels_per_unit)
+    limit = CHILD_SECONDS_BASE + CHILD_SECONDS_PER_TRIANGLE * sum(len(i.triangles) for i in inputs)
+    failures = []
+    for _ in range(PACK_ATTEMPTS):
+        with tempfile.TemporaryDirectory(prefix="pdic-atlas-") as folder:
+            folder = Path(folder)
+            np.savez(folder / "input.npz", **arrays)
+            (folder / "request.json").write_text(json.dumps(request))
+            code = run_child(folder, cancelled, limit)
+            status = folder / "status.json"
+            if not status.is_file():
+                failures.append(f"no answer within {limit:.0f} s" if code is None
+                                else describe_exit(code, folder / "stderr.txt"))
+                continue
+            answer = json.loads(status.read_text())
+            if answer.get("error") == "ValueError":
+                raise ValueError(answer["message"])
+            if answer.get("error"):
+                raise UnwrapError(f"atlas packing failed: {answer['error']}: {answer['message']}")
+            with np.load(folder / "output.npz", allow_pickle=False) as data:
+                return layout_from_answer(answer, data)
+    raise UnwrapError(f"xatlas could not pack the charts of {len(inputs)} objects into {size}x{size} atlases "
+                      f"({'; '.join(failures)}); bake the objects without an atlas, or with fewer objects per bake")
+
+
+def pack_request(inputs: list, size: int, padding: int, texels_per_unit: float) -> tuple[dict, dict]:
+    """The child's request (JSON-ready scalars) and arrays for packing ``inputs``."""
+    request = dict(task="atlas", size=int(size), padding=int(padding), texels_per_unit=float(texels_per_unit),
+                   names=[i.name for i in inputs], density_scales=[float(i.density_scale) for i in inputs],
+                   sys_path=[s for s in sys.path if s])
+    arrays = {}
+    for k, i in enumerate(inputs):
+        arrays[f"positions_{k}"], arrays[f"triangles_{k}"], arrays[f"uv_{k}"] = i.positions, i.triangles, i.uv_chart
+    return request, arrays
+
+
+def inputs_from_request(request: dict, arrays) -> list:
+    """The :class:`AtlasInput` list :func:`pack_request` described (in the child)."""
+    return [AtlasInput(name, arrays[f"positions_{k}"], arrays[f"triangles_{k}"], arrays[f"uv_{k}"], scale)
+            for k, (name, scale) in enumerate(zip(request["names"], request["density_scales"]))]
+
+
+def layout_answer(layout: AtlasLayout) -> tuple[dict, dict]:
+    """A packing as the child's JSON status and arrays (UVs and charts per placement)."""
+    status = dict(size=layout.size, padding=layout.padding, texels_per_unit=layout.texels_per_unit,
+                  atlas_count=layout.atlas_count,
+                  placements=[dict(name=p.name, atlas=int(p.atlas), window=[int(v) for v in p.window])
+                              for p in layout.placements])
+    arrays = {}
+    for k, p in enumerate(layout.placements):
+        arrays[f"uv_{k}"], arrays[f"chart_{k}"] = p.uv, p.chart
+    return status, arrays
+
+
+def layout_from_answer(status: dict, arrays) -> AtlasLayout:
+    """The :class:`AtlasLayout` :func:`layout_answer` wrote (in the parent)."""
+    placements = tuple(Placement(p["name"], int(p["atlas"]), arrays[f"uv_{k}"].astype(np.float32), tuple(p["window"]),
+                                 arrays[f"chart_{k}"].astype(np.int32))
+                       for k, p in enumerate(status["placements"]))
+    return AtlasLayout(int(status["size"]), int(status["padding"]), float(status["texels_per_unit"]),
+                       int(status["atlas_count"]), placements)
 
 
 def _pack(inputs: list, padding: int, texels_per_unit: float) -> "xatlas.Atlas":

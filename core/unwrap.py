@@ -315,11 +315,11 @@ def _layout_in_child(p, tri, resolution, padding, poly, max_resolution, cancelle
                            sys_path=[s for s in sys.path if s])
             (folder / "request.json").write_text(json.dumps(request))
             limit = CHILD_SECONDS_BASE + CHILD_SECONDS_PER_TRIANGLE * len(tri)
-            code = _run_child(folder, cancelled, limit)
+            code = run_child(folder, cancelled, limit)
             status = folder / "status.json"
             if not status.is_file():
                 crashes.append(f"no answer within {limit:.0f} s" if code is None
-                               else _describe_exit(code, folder / "stderr.txt"))
+                               else describe_exit(code, folder / "stderr.txt"))
                 continue
             answer = json.loads(status.read_text())
             if answer.get("error") == "PackError":
@@ -339,7 +339,7 @@ def _layout_in_child(p, tri, resolution, padding, poly, max_resolution, cancelle
                         f"or give it a light-map UV map of your own")
 
 
-def _run_child(folder: Path, cancelled, time_limit: float) -> int | None:
+def run_child(folder: Path, cancelled, time_limit: float) -> int | None:
     """Run the worker on ``folder``; returns its exit code, or None when it was killed for not
     answering within ``time_limit`` seconds. Kills it and raises ``core.executor.Cancelled``
     when ``cancelled()`` turns True."""
@@ -372,7 +372,7 @@ def _run_child(folder: Path, cancelled, time_limit: float) -> int | None:
                 child.wait()
 
 
-def _describe_exit(code: int, stderr: Path) -> str:
+def describe_exit(code: int, stderr: Path) -> str:
     if code < 0:
         import signal
 

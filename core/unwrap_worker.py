@@ -1,10 +1,15 @@
-"""Child process of :func:`core.unwrap.unwrap`: run the xatlas passes on arrays in a folder.
+"""Child process of :func:`core.unwrap.unwrap` and :func:`core.atlas.pack_atlases`: run xatlas on
+arrays in a folder.
 
-Usage: ``python -I unwrap_worker.py FOLDER``. Reads ``FOLDER/request.json`` (resolution,
-padding, max_resolution, variant, the parent's ``sys_path``) and ``FOLDER/input.npz``
-(positions, triangles, optional polygon); writes ``output.npz`` (uv, chart) and then
+Usage: ``python -I unwrap_worker.py FOLDER``. Reads ``FOLDER/request.json`` (the parent's
+``sys_path``, ``task`` and its scalars) and ``FOLDER/input.npz``; writes ``output.npz`` and then
 ``status.json`` (the scalar results, or ``error`` and ``message``). A crash leaves no
 ``status.json``, which is how the parent tells a crash from an answer.
+
+* task ``unwrap`` (the default): resolution, padding, max_resolution, variant; arrays positions,
+  triangles, optional polygon -> uv, chart (:func:`core.xatlas_charts.layout`).
+* task ``atlas``: :func:`core.atlas.pack_request` / :func:`core.atlas.layout_answer` say what goes
+  in and out (every object's charts -> their placements in the atlases).
 """
 from __future__ import annotations
 
@@ -36,6 +41,9 @@ def main(folder: Path) -> None:
     sys.path[:0] = [s for s in request.get("sys_path", []) if s not in sys.path]
     import numpy as np
 
+    if request.get("task") == "atlas":
+        _pack_atlases(folder, request)
+        return
     charts = _core_module("xatlas_charts")
     with np.load(folder / "input.npz", allow_pickle=False) as data:
         p, tri = data["positions"], data["triangles"]
@@ -52,6 +60,29 @@ def main(folder: Path) -> None:
     else:
         np.savez(folder / "output.npz", uv=out.pop("uv"), chart=out.pop("chart"))
         status = out
+    _answer(folder, status)
+
+
+def _pack_atlases(folder: Path, request: dict) -> None:
+    import numpy as np
+
+    atlas = _core_module("atlas")
+    with np.load(folder / "input.npz", allow_pickle=False) as data:
+        inputs = atlas.inputs_from_request(request, data)
+    try:
+        layout = atlas.pack_atlases(inputs, int(request["size"]), int(request["padding"]),
+                                    float(request["texels_per_unit"]), in_process=True)
+    except ValueError as e:  # an object that does not fit: the message names it
+        status = dict(error="ValueError", message=str(e))
+    except Exception as e:
+        status = dict(error=type(e).__name__, message=str(e))
+    else:
+        status, arrays = atlas.layout_answer(layout)
+        np.savez(folder / "output.npz", **arrays)
+    _answer(folder, status)
+
+
+def _answer(folder: Path, status: dict) -> None:
     (folder / "status.tmp").write_text(json.dumps(status))
     (folder / "status.tmp").replace(folder / "status.json")
 

@@ -92,7 +92,12 @@ def unwrap_into_atlases(job, progress: Progress, hooks) -> core_atlas.AtlasLayou
         inputs.append(core_atlas.AtlasInput(name, tris.positions * scale, tris.triangles, result.uv,
                                             job.atlas_density.get(name, 1.0)))
         progress.update((i + 1) / (len(job.mesh_users) + 1))
-    layout = core_atlas.pack_atlases(inputs, job.atlas_size, s.padding, s.texel_density)
+    progress.begin("Packing the atlases (xatlas)")
+    try:  # in a child process: a crash or hang of xatlas cannot take Blender down
+        layout = core_atlas.pack_atlases(inputs, job.atlas_size, s.padding, s.texel_density,
+                                         cancelled=hooks("atlas", 1.0)["cancelled"])
+    except unwrap.UnwrapError as e:
+        raise ValueError(f"cannot pack the atlases: {e}") from e
     for p in layout.placements:
         mesh_name, tris, result = results[p.name]
         uv_loop, conflicts = unwrap.loop_uvs(p.uv, tris.loops, tris.loop_count)

@@ -82,6 +82,35 @@ def test_object_larger_than_an_atlas_is_named():
         atlas.pack_atlases([quad_input("big", 10.0)], 64, 2, texels_per_unit=100.0)
 
 
+def test_packing_in_the_child_process_equals_packing_in_process():
+    """The bake packs in a child process (a crash or hang of xatlas cannot take Blender down);
+    what comes back is the in-process packing, bit for bit."""
+    inputs = [quad_input(f"q{i}", 1.0 + 0.5 * i) for i in range(4)]
+    child = atlas.pack_atlases(inputs, 128, 2)
+    here = atlas.pack_atlases(inputs, 128, 2, in_process=True)
+    assert (child.size, child.padding, child.texels_per_unit, child.atlas_count) == \
+        (here.size, here.padding, here.texels_per_unit, here.atlas_count)
+    for a, b in zip(child.placements, here.placements):
+        assert (a.name, a.atlas, a.window) == (b.name, b.atlas, b.window)
+        assert np.array_equal(a.uv, b.uv) and np.array_equal(a.chart, b.chart)
+
+
+def test_packing_child_that_gives_no_answer_in_time_is_killed_retried_and_reported(monkeypatch):
+    """xatlas's packing once hung in the bake's own process (every thread in a futex wait): the
+    child is killed past its time limit, tried again, and the error says neither answered."""
+    monkeypatch.setattr(atlas, "CHILD_SECONDS_BASE", 0.0)
+    monkeypatch.setattr(atlas, "CHILD_SECONDS_PER_TRIANGLE", 0.0)
+    with pytest.raises(atlas.UnwrapError, match="; ".join(["no answer within 0 s"] * atlas.PACK_ATTEMPTS)):
+        atlas.pack_atlases([quad_input("q", 1.0)], 64, 2)
+
+
+def test_cancelled_packing_stops_its_child_and_raises_cancelled():
+    from pdic.core.executor import Cancelled
+
+    with pytest.raises(Cancelled):
+        atlas.pack_atlases([quad_input("q", 1.0)], 64, 2, cancelled=lambda: True)
+
+
 def test_density_scale_doubles_an_objects_texels():
     a, b = quad_input("a", 1.0), quad_input("b", 1.0)
     b = atlas.AtlasInput("b", b.positions, b.triangles, b.uv_chart, density_scale=2.0)
