@@ -119,10 +119,16 @@ def block_means(image: np.ndarray, mask: np.ndarray, factor: int = BLOCK):
     return block_average(image, mask, factor), blocks
 
 
-def errors(test: np.ndarray, pair: tuple, mask: np.ndarray) -> dict:
+METRICS = ("texel", "block", "texel_interior", "block_interior")
+"""Error metrics: per texel and on block means, over the centre texels and over interior texels only."""
+
+
+def errors(test: np.ndarray, pair: tuple, mask: np.ndarray, interior: np.ndarray | None = None) -> dict:
     """Noise-corrected relative RMSE of ``test`` (H, W, 3) against a seed pair, per texel and per block.
 
-    pair : two (H, W, 3) float32 bakes with other seeds than ``test``; mask : (H, W) bool texels compared.
+    pair : two (H, W, 3) float32 bakes with other seeds than ``test``; mask : (H, W) bool texels compared;
+    interior : (H, W) bool, optional: the same again over ``mask & interior`` (``texel_interior``,
+    ``block_interior``; ``bench.run.interior_texels``: texels both bakers define alike).
     Returns {"texel": float, "block": float} (fractions, 0.02 = 2 %) and "mean_ratio", the
     mean of ``test`` over the pair's (a bias no block size forgives: 0.9 = 10 % too dark).
     """
@@ -136,7 +142,15 @@ def errors(test: np.ndarray, pair: tuple, mask: np.ndarray) -> dict:
     (x, blocks), (a, _), (b, _) = (block_means(v, mask) for v in (test, pair[0], pair[1]))
     out["block"] = corrected(x, a, b, blocks)
     out["mean_ratio"] = float(test[mask].mean() / max(0.5 * (pair[0][mask].mean() + pair[1][mask].mean()), 1e-30))
+    if interior is not None:
+        inner = errors(test, pair, mask & interior)
+        out["texel_interior"], out["block_interior"] = inner["texel"], inner["block"]
     return out
+
+
+def _error_fields(err: dict) -> dict:
+    """A row's ``error_<metric>`` fields from :func:`errors`' result."""
+    return {f"error_{m}": err[m] for m in METRICS if m in err}
 
 
 # --------------------------------------------------------------------------- scenes
@@ -239,7 +253,7 @@ def denoise(image: np.ndarray, mode: str, normal: np.ndarray) -> np.ndarray:
     raise ValueError(f"unknown denoiser {mode!r}; expected one of {DENOISERS}")
 
 
-def cycles_ladder(obj, size, spec: SceneSpec, refs: dict, mask, normal, keep_spp: int) -> tuple:
+def cycles_ladder(obj, size, spec: SceneSpec, refs: dict, mask, normal, keep_spp: int, interior=None) -> tuple:
     """Raw and denoised Cycles bakes on the ladder: (rows, {(kind, method): image at ``keep_spp``})."""
     rows, kept = [], {}
     for mode in DENOISERS:  # OIDN loads its weights on first use: not a cost of the cheapest rung
@@ -252,10 +266,10 @@ def cycles_ladder(obj, size, spec: SceneSpec, refs: dict, mask, normal, keep_spp
                 out, wall, cpu = clocked(denoise, bake["image"], mode, normal)
                 variants.append((f"Cycles + OIDN {mode}", out, wall, cpu))
             for method, image, wall, cpu in variants:
-                err = errors(image, refs[kind], mask)
+                err = errors(image, refs[kind], mask, interior)
                 rows.append(dict(method=method, kind=kind, spp=spp, wall=bake["wall"] + wall,
                                  cpu=bake["cpu"] + cpu, denoise_wall=wall, denoise_cpu=cpu,
-                                 error_texel=err["texel"], error_block=err["block"], mean_ratio=err["mean_ratio"]))
+                                 **_error_fields(err), mean_ratio=err["mean_ratio"]))
                 log("competitors", spec.label, {k: v for k, v in rows[-1].items()})
                 if spp == keep_spp:
                     kept[(kind, method)] = image
@@ -263,7 +277,7 @@ def cycles_ladder(obj, size, spec: SceneSpec, refs: dict, mask, normal, keep_spp
 
 
 # --------------------------------------------------------------------------- PDIC
-def pdic_runs(scene, name: str, refs: dict, mask, save_to: Path | None = None) -> tuple:
+def pdic_runs(scene, name: str, refs: dict, mask, save_to: Path | None = None, interior=None) -> tuple:
     """PDIC Final and Preview at defaults: (rows, {(kind, method): image} of Final)."""
     from pdic.core.pipeline import bake
     from pdic.core.settings import preset
@@ -275,9 +289,9 @@ def pdic_runs(scene, name: str, refs: dict, mask, save_to: Path | None = None) -
         images = {"all": result.lightmaps[name][..., :3], "indirect": result.indirect[name]}
         counters = result.stats.get("counters", {})
         for kind, image in images.items():
-            err = errors(image, refs[kind], mask & result.centre_inside[name])
-            rows.append(dict(method=method, kind=kind, wall=wall, cpu=cpu, error_texel=err["texel"],
-                             error_block=err["block"], mean_ratio=err["mean_ratio"], records=counters.get("records_total"),
+            err = errors(image, refs[kind], mask & result.centre_inside[name], interior)
+            rows.append(dict(method=method, kind=kind, wall=wall, cpu=cpu, **_error_fields(err),
+                             mean_ratio=err["mean_ratio"], records=counters.get("records_total"),
                              stage_seconds=result.stats.get("seconds", {})))
             log("competitors", method, {k: v for k, v in rows[-1].items() if k != "stage_seconds"})
             if quality == "FINAL":
@@ -317,7 +331,7 @@ def equal_error(cycles_rows: list, pdic_rows: list) -> list:
     out = []
     methods = sorted({r["method"] for r in cycles_rows})
     for p in pdic_rows:
-        for metric in ("texel", "block"):
+        for metric in (m for m in METRICS if f"error_{m}" in p):
             row = dict(pdic=p["method"], kind=p["kind"], metric=metric, error=p[f"error_{metric}"], pdic_cpu=p["cpu"],
                        pdic_wall=p["wall"], cycles={})
             for method in methods:
@@ -357,9 +371,12 @@ def run_scene(key: str, spec: SceneSpec, results: Path) -> dict:
     log("competitors", spec.label, f"{size[0]}x{size[1]}, {int(mask.sum()):,} texels, "
         f"{scene.geometry.count:,} triangles")
     refs = {kind: reference_pair(obj, size, passes, spec.reference_spp, work) for kind, passes in PASS_SETS.items()}
-    pdic, pdic_images = pdic_runs(scene, target.name, refs, mask, work / "pdic_final.npz")
+    from pdic.bench.run import interior_texels
+
+    interior = interior_texels(scene)[target.name]
+    pdic, pdic_images = pdic_runs(scene, target.name, refs, mask, work / "pdic_final.npz", interior)
     keep = spec.ladder[min(2, len(spec.ladder) - 1)]
-    cycles, cycles_images = cycles_ladder(obj, size, spec, refs, mask, normal, keep)
+    cycles, cycles_images = cycles_ladder(obj, size, spec, refs, mask, normal, keep, interior)
     window = crop_window(position, mask, spec.crop_world)
     cut = crops({**pdic_images, **cycles_images, **{(k, "reference"): 0.5 * (a + b) for k, (a, b) in refs.items()}},
                 window)
@@ -367,6 +384,7 @@ def run_scene(key: str, spec: SceneSpec, results: Path) -> dict:
     np.savez_compressed(results / f"competitors_crops_{key}.npz", mask=mask[r:r + CROP, c:c + CROP], **cut)
     noise = {k: _seed_noise(a, b, mask) for k, (a, b) in refs.items()}
     return dict(label=spec.label, width=size[0], height=size[1], texels=int(mask.sum()),
+                interior_texels=int((mask & interior).sum()),
                 triangles=int(scene.geometry.count), ladder=list(spec.ladder), reference_spp=spec.reference_spp,
                 reference_noise=noise, crop_spp=keep, crop_window=list(window), crop_world=list(spec.crop_world),
                 pdic=pdic, cycles=cycles, equal_error=equal_error(cycles, pdic))
@@ -437,11 +455,14 @@ def markdown(c: dict) -> str:
            f"{c['cycles_bounces']} diffuse bounces, no clamping, {c['margin']}-texel margin, denoised by OIDN "
            f"(RT: colour; RT+aux: albedo 1 and the texels' normals; RTLightmap). Errors: relative RMSE over the "
            f"texels whose centre is on a triangle, per texel and on {c['block']}x{c['block']} block means, "
-           f"noise-corrected against a pair of reference bakes (seeds 1, 2). CPU s = process time of bake + "
-           f"denoise (all threads; the comparable number on a shared machine), wall s beside it. PDIC: core bake "
-           f"at preset defaults (6 bounces; Cycles' extra bounces count as PDIC's error).\n"]
+           f"noise-corrected against a pair of reference bakes (seeds 1, 2); *interior*: the same over the texels "
+           f"whose 2x2 samples all lie on the mesh and whose 8 neighbours are covered (at a chart's edge Cycles' "
+           f"bake averages points past the triangle, PDIC its samples on it: bench/run.py `interior_texels`). "
+           f"CPU s = process time of bake + denoise (all threads; the comparable number on a shared machine), "
+           f"wall s beside it. PDIC: core bake at preset defaults.\n"]
     for key, s in c["scenes"].items():
-        out.append(f"\n### {s['label']}: {s['width']}x{s['height']}, {s['texels']:,} texels, "
+        inner = f" ({s['interior_texels']:,} interior)" if "interior_texels" in s else ""
+        out.append(f"\n### {s['label']}: {s['width']}x{s['height']}, {s['texels']:,} texels{inner}, "
                    f"{s['triangles']:,} triangles; reference {s['reference_spp']} spp x 2 (its own noise per texel: "
                    f"{_pct(s['reference_noise']['all'])} % all, {_pct(s['reference_noise']['indirect'])} % indirect)\n\n")
         rows = []
@@ -449,10 +470,14 @@ def markdown(c: dict) -> str:
         for method, spp in dict.fromkeys((r["method"], r.get("spp")) for r in s["pdic"] + s["cycles"]):
             a, i = by.get((method, spp, "all")), by.get((method, spp, "indirect"))
             rows.append([method, "-" if spp is None else spp, _s(a["cpu"]), _s(a["wall"]), _pct(a["error_texel"]),
-                         _pct(a["error_block"]), _s(i["cpu"]), _pct(i["error_texel"]), _pct(i["error_block"]),
-                         _ratio(a), _ratio(i)])
-        out.append(_md_table(["method", "spp", "CPU s", "wall s", "all: texel %", f"all: {c['block']}x{c['block']} %",
-                              "indirect bake CPU s", "indirect: texel %", f"indirect: {c['block']}x{c['block']} %",
+                         _pct(a["error_block"]), _pct(a.get("error_texel_interior")),
+                         _pct(a.get("error_block_interior")), _s(i["cpu"]), _pct(i["error_texel"]),
+                         _pct(i["error_block"]), _pct(i.get("error_texel_interior")),
+                         _pct(i.get("error_block_interior")), _ratio(a), _ratio(i)])
+        b = f"{c['block']}x{c['block']}"
+        out.append(_md_table(["method", "spp", "CPU s", "wall s", "all: texel %", f"all: {b} %", "all interior: texel %",
+                              f"all interior: {b} %", "indirect bake CPU s", "indirect: texel %", f"indirect: {b} %",
+                              "indirect interior: texel %", f"indirect interior: {b} %",
                               "mean / reference: all", "indirect"],
                              rows))
         out.append("\nCycles' CPU seconds at PDIC's error (log-log interpolated on the ladder; 'at most' = PDIC's "

@@ -6,8 +6,9 @@
 
 Needs bench/converged_references.py's output (references in bench/references/, the one-object
 core scenes in bench/results/converged/). Per bake: bias = sum PDIC / sum reference - 1 over the
-texels both cover, the noise-corrected relative RMS error (bench/run.py), photons stored and
-the bake's CPU seconds (``threads=1``). ``--figure5`` runs bench/run.py's [Chr99]-vs-Preview
+texels both cover, the noise-corrected relative RMS error (bench/run.py), the same error over
+*interior* texels only (``bench.run.interior_texels``), photons stored and the bake's CPU seconds
+(``threads=1``). ``--figure5`` runs bench/run.py's [Chr99]-vs-Preview
 comparison against the same references instead.
 """
 from __future__ import annotations
@@ -17,6 +18,7 @@ import json
 import pickle
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -57,20 +59,49 @@ def bias(images: dict, covered: dict, pair) -> float:
     return test / max(ref, 1e-30) - 1.0
 
 
-def measure(name: str, scene, pair, quality: str, overrides: dict, switches: str = "") -> dict:
+def measure(name: str, scene, pair, quality: str, overrides: dict, switches: str = "", interior=None,
+            seeds=(0,)) -> dict:
+    """One row per setting: errors of the first seed's bake; with two seeds also PDIC's own noise."""
     settings = bench_run.with_deviations(preset(quality, threads=1, **overrides), switches)
-    t = time.process_time()
-    result = bake(scene, settings)
-    cpu = time.process_time() - t
+    interior = interior if interior is not None else bench_run.interior_texels(scene, settings.texel_samples)
+    bakes = []
+    for seed in seeds:
+        t = time.process_time()
+        bakes.append((bake(scene, replace(settings, seed=seed)), time.process_time() - t))
+    result, cpu = bakes[0]
     c, s = result.stats["counters"], result.stats["seconds"]
+    inside = {n: cov & interior[n] for n, cov in result.centre_inside.items()}
     row = dict(scene=name, quality=quality, **overrides, deviations=switches, cpu_s=cpu,
                bias=bias(result.indirect, result.centre_inside, pair),
                error=bench_run.noise_corrected_error(result.indirect, result.centre_inside, pair),
+               error_interior=bench_run.noise_corrected_error(result.indirect, inside, pair),
                photons_stored=c.get("photons_stored"), photon_bytes=c.get("photon_bytes"),
                photons_before_control=c.get("photons_before_control"), records=c.get("records"),
                hole_records=c.get("hole_records"), stage_seconds=s)
+    if len(bakes) >= 2:
+        row.update(seed_split(bakes[0][0], bakes[1][0], inside, pair))
     print(json.dumps(row, default=float), flush=True)
     return row
+
+
+def seed_split(first, second, covered: dict, pair) -> dict:
+    """PDIC's own seed-to-seed noise and its systematic error (both noises removed), relative to
+    the reference mean, over ``covered`` texels, from two bakes that differ only in the seed.
+
+    With x1, x2 the bakes and r1, r2 the reference pair: E(x1 - x2)^2 / 2 is PDIC's variance v;
+    E((x1 + x2) / 2 - (r1 + r2) / 2)^2 = bias^2 + v / 2 + (reference noise)^2 / 2.
+    """
+    a, b = pair
+    names = [n for n in a["images"] if n in covered]
+    def cat(images):
+        return np.concatenate([images[n][a["coverage"][n] & b["coverage"][n] & covered[n]
+                                         & first.centre_inside[n] & second.centre_inside[n]].ravel() for n in names])
+    x1, x2 = cat(first.indirect), cat(second.indirect)
+    r1, r2 = cat(a["images"]), cat(b["images"])
+    mean = max(0.5 * float((r1 + r2).mean()), 1e-30)
+    variance = float(np.mean((x1 - x2) ** 2)) / 2.0
+    squared = float(np.mean((0.5 * (x1 + x2) - 0.5 * (r1 + r2)) ** 2)) - variance / 2.0 - float(np.mean((r1 - r2) ** 2)) / 4.0
+    return dict(pdic_seed_noise=np.sqrt(variance) / mean, error_systematic=np.sqrt(max(squared, 0.0)) / mean)
 
 
 def main(argv=None):
@@ -80,14 +111,14 @@ def main(argv=None):
     ap.add_argument("--bounces", default="6,64")
     ap.add_argument("--density-control", default="0")
     ap.add_argument("--photons", type=int, default=None)
+    ap.add_argument("--seeds", default="0", help="seeds baked per row; two split the interior error into "
+                    "PDIC's own seed-to-seed noise and its systematic error")
     ap.add_argument("--figure5", action="store_true")
     ap.add_argument("--deviations", default="", help="Deviations switches, e.g. path_visibility=1")
     ap.add_argument("--kernel-coverage", choices=("default", "on", "off"), default="default",
                     help="force E_k's surface-coverage kernel on or off at both qualities")
     args = ap.parse_args(argv)
     if args.kernel_coverage != "default":
-        from dataclasses import replace
-
         from pdic.core import pipeline
         chosen, on = pipeline.cache_parameters, args.kernel_coverage == "on"
         pipeline.cache_parameters = lambda *a: replace(chosen(*a), kernel_coverage=on)
@@ -99,10 +130,12 @@ def main(argv=None):
             out = bench_run.figure5(name, scene, photons, int(args.bounces.split(",")[-1]), {}, None, pair)
             out.pop("_images", None)
             continue
+        interior = bench_run.interior_texels(scene, preset(args.quality).texel_samples)
         for bounces in (int(b) for b in args.bounces.split(",")):
             for n in (int(v) for v in args.density_control.split(",")):
                 measure(name, scene, pair, args.quality,
-                        dict(max_bounces=bounces, density_control=n, photons=photons), args.deviations)
+                        dict(max_bounces=bounces, density_control=n, photons=photons), args.deviations, interior,
+                        [int(v) for v in args.seeds.split(",")])
 
 
 if __name__ == "__main__":

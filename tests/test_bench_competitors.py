@@ -84,3 +84,29 @@ def test_mean_ratio_reports_a_uniform_darkening():
     truth = _field(32, 32)
     mask = np.ones((32, 32), bool)
     assert competitors.errors(0.8 * truth, (truth, truth), mask)["mean_ratio"] == pytest.approx(0.8, rel=1e-5)
+
+
+def test_interior_errors_are_the_errors_over_the_interior_texels():
+    h, w = 64, 48
+    truth = _field(h, w)
+    mask = np.ones((h, w), bool)
+    interior = np.zeros((h, w), bool)
+    interior[8:56, 8:40] = True
+    test = truth.copy()
+    test[~interior] *= 3.0  # wrong only at the edges
+    err = competitors.errors(test, (truth, truth), mask, interior)
+    assert err["texel"] > 0.5
+    assert err["texel_interior"] == pytest.approx(0.0, abs=1e-6)
+    assert err["block_interior"] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_interior_texels_leave_out_a_charts_border_ring():
+    """A quad filling its 16^2 map: every texel holds 2x2 samples, but the outer ring has neighbours
+    outside the map, so 14^2 texels are interior."""
+    from pdic.bench.run import interior_texels
+    from scenes import quad, quad_scene
+
+    scene = quad_scene([quad([0, 0, 0], [1, 0, 0], [0, 1, 0])], {"plane": (0, 16)}, ())
+    inner = interior_texels(scene)["plane"]
+    assert inner.shape == (16, 16)
+    assert inner.sum() == 14 * 14 and inner[1:15, 1:15].all()
