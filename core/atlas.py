@@ -20,18 +20,14 @@ UVs follow Blender: u right, v up, in [0, 1]; image row 0 is v = 0.
 """
 from __future__ import annotations
 
-import json
 import math
-import sys
-import tempfile
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import xatlas
 
 from .dilate import dilate
-from .unwrap import CHILD_SECONDS_BASE, CHILD_SECONDS_PER_TRIANGLE, UnwrapError, describe_exit, run_child
+from .unwrap import CHILD_SECONDS_BASE, CHILD_SECONDS_PER_TRIANGLE, UnwrapError, ask_child
 from .xatlas_charts import GOOD_FILL, MAX_PACK_ATTEMPTS, pack_options
 
 WINDOW_MARGIN = 1
@@ -208,23 +204,15 @@ def _pack_in_child(inputs: list, size: int, padding: int, texels_per_unit: float
     limit = CHILD_SECONDS_BASE + CHILD_SECONDS_PER_TRIANGLE * sum(len(i.triangles) for i in inputs)
     failures = []
     for _ in range(PACK_ATTEMPTS):
-        with tempfile.TemporaryDirectory(prefix="pdic-atlas-") as folder:
-            folder = Path(folder)
-            np.savez(folder / "input.npz", **arrays)
-            (folder / "request.json").write_text(json.dumps(request))
-            code = run_child(folder, cancelled, limit)
-            status = folder / "status.json"
-            if not status.is_file():
-                failures.append(f"no answer within {limit:.0f} s" if code is None
-                                else describe_exit(code, folder / "stderr.txt"))
-                continue
-            answer = json.loads(status.read_text())
-            if answer.get("error") == "ValueError":
-                raise ValueError(answer["message"])
-            if answer.get("error"):
-                raise UnwrapError(f"atlas packing failed: {answer['error']}: {answer['message']}")
-            with np.load(folder / "output.npz", allow_pickle=False) as data:
-                return layout_from_answer(answer, data)
+        answer, out = ask_child(request, arrays, cancelled, limit, "pdic-atlas-")
+        if answer is None:
+            failures.append(out)
+            continue
+        if answer.get("error") == "ValueError":
+            raise ValueError(answer["message"])
+        if answer.get("error"):
+            raise UnwrapError(f"atlas packing failed: {answer['error']}: {answer['message']}")
+        return layout_from_answer(answer, out)
     raise UnwrapError(f"xatlas could not pack the charts of {len(inputs)} objects into {size}x{size} atlases "
                       f"({'; '.join(failures)}); bake the objects without an atlas, or with fewer objects per bake")
 
@@ -232,8 +220,7 @@ def _pack_in_child(inputs: list, size: int, padding: int, texels_per_unit: float
 def pack_request(inputs: list, size: int, padding: int, texels_per_unit: float) -> tuple[dict, dict]:
     """The child's request (JSON-ready scalars) and arrays for packing ``inputs``."""
     request = dict(task="atlas", size=int(size), padding=int(padding), texels_per_unit=float(texels_per_unit),
-                   names=[i.name for i in inputs], density_scales=[float(i.density_scale) for i in inputs],
-                   sys_path=[s for s in sys.path if s])
+                   names=[i.name for i in inputs], density_scales=[float(i.density_scale) for i in inputs])
     arrays = {}
     for k, i in enumerate(inputs):
         arrays[f"positions_{k}"], arrays[f"triangles_{k}"], arrays[f"uv_{k}"] = i.positions, i.triangles, i.uv_chart

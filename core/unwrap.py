@@ -302,41 +302,53 @@ def _layout_in_child(p, tri, resolution, padding, poly, max_resolution, cancelle
     """:func:`core.xatlas_charts.layout` in a child process, retried with other chart options
     when it crashes. Arrays go through ``.npz`` files in a temporary folder."""
     crashes = []
+    arrays = dict(positions=p, triangles=tri)
+    if poly is not None:
+        arrays["polygon"] = poly
+    limit = CHILD_SECONDS_BASE + CHILD_SECONDS_PER_TRIANGLE * len(tri)
     for variant in range(CHART_VARIANTS):
         if progress is not None:
             progress("unwrapping (xatlas)" if variant == 0 else f"unwrapping again with chart options {variant}")
-        with tempfile.TemporaryDirectory(prefix="pdic-unwrap-") as folder:
-            folder = Path(folder)
-            arrays = dict(positions=p, triangles=tri)
-            if poly is not None:
-                arrays["polygon"] = poly
-            np.savez(folder / "input.npz", **arrays)
-            request = dict(resolution=resolution, padding=padding, max_resolution=max_resolution, variant=variant,
-                           sys_path=[s for s in sys.path if s])
-            (folder / "request.json").write_text(json.dumps(request))
-            limit = CHILD_SECONDS_BASE + CHILD_SECONDS_PER_TRIANGLE * len(tri)
-            code = run_child(folder, cancelled, limit)
-            status = folder / "status.json"
-            if not status.is_file():
-                crashes.append(f"no answer within {limit:.0f} s" if code is None
-                               else describe_exit(code, folder / "stderr.txt"))
-                continue
-            answer = json.loads(status.read_text())
-            if answer.get("error") == "PackError":
-                raise PackError(answer["message"], int(answer.get("minimum", 0)))
-            if answer.get("error") == "ValueError":
-                raise ValueError(answer["message"])
-            if answer.get("error"):
-                raise UnwrapError(f"xatlas failed: {answer['error']}: {answer['message']}")
-            with np.load(folder / "output.npz", allow_pickle=False) as data:
-                out = {k: data[k] for k in data.files}
-            return dict(uv=out["uv"].astype(np.float32), chart=out["chart"].astype(np.int32),
-                        **{k: answer[k] for k in ("chart_count", "utilization", "polygons_fixed",
-                                                  "polygons_detached", "resolution")})
+        request = dict(resolution=resolution, padding=padding, max_resolution=max_resolution, variant=variant)
+        answer, out = ask_child(request, arrays, cancelled, limit, "pdic-unwrap-")
+        if answer is None:
+            crashes.append(out)
+            continue
+        if answer.get("error") == "PackError":
+            raise PackError(answer["message"], int(answer.get("minimum", 0)))
+        if answer.get("error") == "ValueError":
+            raise ValueError(answer["message"])
+        if answer.get("error"):
+            raise UnwrapError(f"xatlas failed: {answer['error']}: {answer['message']}")
+        return dict(uv=out["uv"].astype(np.float32), chart=out["chart"].astype(np.int32),
+                    **{k: answer[k] for k in ("chart_count", "utilization", "polygons_fixed",
+                                              "polygons_detached", "resolution")})
     raise UnwrapCrashed(f"xatlas crashed on this mesh with all {CHART_VARIANTS} chart-option sets "
                         f"({'; '.join(crashes)}); a known xatlas bug (jpcy/xatlas#146) on some regular meshes, "
                         f"e.g. an ico sphere with 7 subdivisions: change the mesh (e.g. fewer subdivisions) "
                         f"or give it a light-map UV map of your own")
+
+
+def ask_child(request: dict, arrays: dict, cancelled, time_limit: float, prefix: str) -> tuple[dict | None, object]:
+    """Run ``core/unwrap_worker.py`` on ``request`` (JSON scalars) and ``arrays`` in a temporary folder.
+
+    Returns (its status, its output arrays), ({"error": ..., "message": ...}, {}) when it reported
+    an error, or (None, what happened) when it crashed or gave no answer within ``time_limit`` s.
+    """
+    with tempfile.TemporaryDirectory(prefix=prefix) as folder:
+        folder = Path(folder)
+        np.savez(folder / "input.npz", **arrays)
+        (folder / "request.json").write_text(json.dumps(dict(request, sys_path=[s for s in sys.path if s])))
+        code = run_child(folder, cancelled, time_limit)
+        status = folder / "status.json"
+        if not status.is_file():
+            return None, (f"no answer within {time_limit:.0f} s" if code is None
+                          else describe_exit(code, folder / "stderr.txt"))
+        answer = json.loads(status.read_text())
+        if answer.get("error"):
+            return answer, {}
+        with np.load(folder / "output.npz", allow_pickle=False) as data:
+            return answer, {k: data[k] for k in data.files}
 
 
 def run_child(folder: Path, cancelled, time_limit: float) -> int | None:
