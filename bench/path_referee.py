@@ -68,12 +68,9 @@ def path_traced_indirect(scene, caster, p: np.ndarray, n: np.ndarray, rng: np.ra
 
 def cosine_directions(n: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """(m, 3) unit directions, cosine-distributed about the unit normals n (m, 3)."""
-    from pdic.core.hemisphere import local_frames
+    from pdic.core.sampling import cosine_hemisphere, to_world
 
-    u1, u2 = rng.random(len(n)), rng.random(len(n))
-    r, phi = np.sqrt(u1), 2.0 * np.pi * u2
-    t1, t2, normal = local_frames(n)
-    return (r * np.cos(phi))[:, None] * t1 + (r * np.sin(phi))[:, None] * t2 + np.sqrt(1.0 - u1)[:, None] * normal
+    return to_world(cosine_hemisphere(rng.random((len(n), 2)))[0], n)
 
 
 def mean_indirect(scene, caster, p: np.ndarray, n: np.ndarray, paths: int, rng: np.random.Generator

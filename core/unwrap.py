@@ -339,11 +339,11 @@ def ask_child(request: dict, arrays: dict, cancelled, time_limit: float, prefix:
         folder = Path(folder)
         np.savez(folder / "input.npz", **arrays)
         (folder / "request.json").write_text(json.dumps(dict(request, sys_path=[s for s in sys.path if s])))
-        code = run_child(folder, cancelled, time_limit)
+        code = _run_child(folder, cancelled, time_limit)
         status = folder / "status.json"
         if not status.is_file():
             return None, (f"no answer within {time_limit:.0f} s" if code is None
-                          else describe_exit(code, folder / "stderr.txt"))
+                          else _describe_exit(code, folder / "stderr.txt"))
         answer = json.loads(status.read_text())
         if answer.get("error"):
             return answer, {}
@@ -351,7 +351,7 @@ def ask_child(request: dict, arrays: dict, cancelled, time_limit: float, prefix:
             return answer, {k: data[k] for k in data.files}
 
 
-def run_child(folder: Path, cancelled, time_limit: float) -> int | None:
+def _run_child(folder: Path, cancelled, time_limit: float) -> int | None:
     """Run the worker on ``folder``; returns its exit code, or None when it was killed for not
     answering within ``time_limit`` seconds. Kills it and raises ``core.executor.Cancelled``
     when ``cancelled()`` turns True."""
@@ -384,7 +384,7 @@ def run_child(folder: Path, cancelled, time_limit: float) -> int | None:
                 child.wait()
 
 
-def describe_exit(code: int, stderr: Path) -> str:
+def _describe_exit(code: int, stderr: Path) -> str:
     if code < 0:
         import signal
 

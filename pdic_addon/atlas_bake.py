@@ -95,7 +95,7 @@ def unwrap_into_atlases(job, progress: Progress, hooks) -> core_atlas.AtlasLayou
     progress.begin("Packing the atlases (xatlas)")
     try:  # in a child process: a crash or hang of xatlas cannot take Blender down
         layout = core_atlas.pack_atlases(inputs, job.atlas_size, s.padding, s.texel_density,
-                                         cancelled=hooks("atlas", 1.0)["cancelled"])
+                                         cancelled=progress.cancel_requested.is_set)
     except unwrap.UnwrapError as e:
         raise ValueError(f"cannot pack the atlases: {e}") from e
     for p in layout.placements:
