@@ -16,13 +16,17 @@ from .constants import COVERAGE_LIFT, R_K_DISTANCE_FLOOR, R_K_SAME_SIDE_COS, R_O
 from .photons import PhotonMap
 from .record_walls import beyond_wall
 from .ward import accepted_from, weight_from
+from .vectors import norms
 
 
 class PhotonDensity:
     """kd-trees over the photon map answering the two queries of each record creation."""
 
-    def __init__(self, photons: PhotonMap):
+    def __init__(self, photons: PhotonMap, workers: int = 1):
+        """workers : threads for the kd-tree queries of record placement (pass 2 and hole records run
+        those on the calling thread; the executor's chunks query ``tree`` themselves, one thread each)."""
         self.photons = photons
+        self.workers = max(1, int(workers))
         # Memory: the kd-tree keeps the only float64 copy of the positions (tree.data);
         # normals, powers and last hits stay float32 (12 bytes each per photon), so
         # 4M photons fit in 1 GB with their trees (bench/ measures the peak).
@@ -49,7 +53,7 @@ class PhotonDensity:
         if not self.has_indirect or B == 0:
             return R
         k = min(R_OVERSAMPLE * count, len(self.p))
-        _, idx = self.tree.query(p_k, k=k)
+        _, idx = self.tree.query(p_k, k=k, workers=self.workers)
         self.queries += B
         idx = np.asarray(idx).reshape(B, k)
         valid = idx < len(self.p)
@@ -63,7 +67,7 @@ class PhotonDensity:
         ok = (np.einsum("ij,ij->i", self.n[j], n_k[rows]) > R_K_SAME_SIDE_COS) & (
             np.einsum("ij,ij->i", to_hit, n_k[rows]) > 0)
         rows = rows[ok]
-        d = np.maximum(np.linalg.norm(to_hit[ok], axis=1), R_K_DISTANCE_FLOOR * R_max)
+        d = np.maximum(norms(to_hit[ok]), R_K_DISTANCE_FLOOR * R_max)
         kept = np.bincount(rows, minlength=B)
         inverse = np.bincount(rows, weights=1.0 / d, minlength=B)
         np.divide(kept, inverse, out=R, where=kept > 0)
@@ -100,7 +104,7 @@ class PhotonDensity:
         """
         B = len(p_k)
         radius = a * R_k
-        lengths, sphere = ball_pairs(self.tree, p_k, radius)
+        lengths, sphere = ball_pairs(self.tree, p_k, radius, self.workers)
         self.queries += B
         rec = np.repeat(np.arange(B), lengths)
         # np.take and np.repeat: fancy row indexing of (N, 3) arrays costs ~3x more (numpy 1.26).
@@ -155,15 +159,17 @@ class ZoneEstimates:
     used: np.ndarray
 
 
-def ball_pairs(tree: cKDTree, points: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def ball_pairs(tree: cKDTree, points: np.ndarray, radius: np.ndarray, workers: int = 1
+               ) -> tuple[np.ndarray, np.ndarray]:
     """Data points within ``radius`` of each query point, in one batched kd-tree query.
 
     points : (B, 3); radius : (B,) float64. Returns (lengths (B,) int64, idx (sum lengths,) int64):
     the indices near point 0, then those near point 1, ... (unsorted within a point).
+    workers : threads for the query; the pairs do not depend on it.
     """
     B = len(points)
     if B == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    lists = tree.query_ball_point(points, radius, return_sorted=False)
+    lists = tree.query_ball_point(points, radius, return_sorted=False, workers=workers)
     lengths = np.fromiter(map(len, lists), np.int64, B)
     return lengths, np.fromiter(chain.from_iterable(lists), np.int64, int(lengths.sum()))

@@ -30,6 +30,7 @@ from scipy.spatial import cKDTree
 from .constants import (DENSITY_RECEIVERS, R_K_DISTANCE_FLOOR, R_K_SAME_SIDE_COS, SAME_SURFACE_COS,
                         STREAM_DENSITY_CONTROL)
 from .photons import PhotonMap
+from .vectors import norms
 
 _CHUNK = 65_536
 """Photons per kd-tree query batch (bounds the (chunk, r) neighbour arrays to a few MB)."""
@@ -64,7 +65,7 @@ def harmonic_last_hit_radius(p: np.ndarray, n: np.ndarray, photons: PhotonMap, r
         idx = idx.reshape(len(P), k)
         to_hit = last_hit[idx] - P[:, None, :]
         ok = (np.einsum("mkj,mj->mk", normals[idx], N) > R_K_SAME_SIDE_COS) & (np.einsum("mkj,mj->mk", to_hit, N) > 0)
-        d = np.maximum(np.linalg.norm(to_hit, axis=2), R_K_DISTANCE_FLOOR * R_max)
+        d = np.maximum(norms(to_hit), R_K_DISTANCE_FLOOR * R_max)
         count, inv = ok.sum(axis=1), np.where(ok, 1.0 / d, 0.0).sum(axis=1)
         R[s:s + len(P)] = np.where(count > 0, count / np.maximum(inv, 1e-300), R_max)
     return np.clip(R, R_min, R_max)

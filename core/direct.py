@@ -39,6 +39,7 @@ from .executor import TEXEL_CHUNK, slices
 from .lights import EMISSIVE_KEY, WORLD_KEY, SceneError, ShadowSamples, spot_attenuation  # noqa: F401 (re-exported)
 from .rays import RayCaster
 from .scene import Scene
+from .vectors import unit
 
 LIGHT_KINDS = ("point", "spot", "sun", "area", "emissive", "world")
 
@@ -98,8 +99,8 @@ def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, norma
     if p.ndim != 2 or p.shape[1] != 3:
         raise ValueError(f"points must be (n, 3), got {p.shape}")
     n = len(p)
-    n_s = _unit(_shape_check(normals, n, "normals"))
-    n_g = _unit(_shape_check(geo_normals, n, "geo_normals"))
+    n_s = unit(_shape_check(normals, n, "normals"))
+    n_g = unit(_shape_check(geo_normals, n, "geo_normals"))
     if not np.isfinite(p).all():
         raise ValueError("direct_irradiance: non-finite receiving points")
     if samples < 1:
@@ -126,11 +127,6 @@ def _shape_check(a, n, name):
     return np.nan_to_num(a)
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
-    length = np.linalg.norm(v, axis=-1, keepdims=True)
-    return np.divide(v, length, out=np.zeros_like(v), where=length > 0)
-
-
 def _trace(out: DirectResult, caster: RayCaster, p, n_g, shadow: ShadowSamples) -> None:
     """Trace the shadow rays of accepted samples and add colour * mean(weight * transmittance) to out.E[idx]."""
     idx, ok, weight = shadow.idx, shadow.ok, shadow.weight
@@ -138,7 +134,7 @@ def _trace(out: DirectResult, caster: RayCaster, p, n_g, shadow: ShadowSamples) 
     rows, cols = np.nonzero(ok)
     vis = np.zeros((k, m))
     if len(rows):
-        pi, ni = p[idx[rows]], n_g[idx[rows]]
+        pi, ni = np.take(p, idx[rows], axis=0), np.take(n_g, idx[rows], axis=0)
         # Transmissive layers pass their share of the light (deviation: transparent-shadows).
         if shadow.directions is None:
             vis[rows, cols] = caster.transmittance_between(pi, ni, shadow.targets[rows, cols], None)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from .hemisphere import Hemisphere, gradient_to_world
+from .vectors import norms
 
 
 class CellSums:
@@ -106,7 +107,7 @@ def limit_gradients(E: np.ndarray, grad_t: np.ndarray, grad_r: np.ndarray, zone_
     |grad_r| at E_k (per radian), as production irradiance caches do.
     """
     def cap(grad, limit):
-        norm = np.linalg.norm(grad, axis=2)  # (K, 3 channels)
+        norm = norms(grad)  # (K, 3 channels)
         scale = np.divide(limit, norm, out=np.ones_like(norm), where=norm > limit)
         return grad * scale[..., None]
 

@@ -72,7 +72,8 @@ class CacheLookup:
         c = self.cache
         rows, rec = self.candidates(p)
         if len(rows):
-            p_r, n_r, p_k, n_k, R_k = p[rows], n[rows], c.p[rec], c.n[rec], c.R[rec] + self.margin / self.a
+            p_r, n_r = np.take(p, rows, axis=0), np.take(n, rows, axis=0)
+            p_k, n_k, R_k = np.take(c.p, rec, axis=0), np.take(c.n, rec, axis=0), c.R[rec] + self.margin / self.a
             w = ward_weight(p_r, n_r, p_k, n_k, R_k)
             ok = accepted(w, self.a, p_r, n_r, p_k, n_k, R_k)
             delta = p_r - p_k

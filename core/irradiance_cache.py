@@ -63,6 +63,7 @@ from .executor import slices
 from .photons import PhotonLighting
 from .record_walls import beyond_wall, open_walls, wall_distances
 from .ward import accepted, ward_weight
+from .vectors import norms
 
 # Uncovered candidates handled together (one batched kd-tree query, ray cast and density estimate).
 _BLOCK = 2048
@@ -179,7 +180,7 @@ def cache_from_photons(density: PhotonDensity, params: CacheParameters, seed: in
                                         params, np.random.default_rng([seed, STREAM_RECORD_ORDER]),
                                         candidate_is_photon=True, progress=progress, caster=caster)
     if params.neighbour_clamp:  # deviation: neighbour-clamp, docs/DEVIATIONS.md
-        cache.R = neighbour_clamp(cache.p, cache.R)
+        cache.R = neighbour_clamp(cache.p, cache.R, density.workers)
     return cache, zones, lighting, stats
 
 
@@ -210,7 +211,7 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
     threshold = 1.0 / params.a
     stats = CacheBuildStats()
     records = _Records()
-    clamp = _NeighbourClamp(existing, params.neighbour_clamp)
+    clamp = _NeighbourClamp(existing, params.neighbour_clamp, density.workers)
     cand_tree = None if candidate_is_photon else cKDTree(cand_p)
     order = rng.permutation(len(cand_p))
     start, size = 0, 32  # the first block is small: it measures how many photons a zone holds
@@ -219,7 +220,7 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
         stats.candidates_visited += len(block)
         while len(block):  # records placed in a block may leave some of its candidates uncovered
             R_k = _radii(density, cand_p[block], cand_n[block], params, clamp)
-            walked = _walk(cand_p[block], cand_n[block], R_k, params.a)
+            walked = _walk(cand_p[block], cand_n[block], R_k, params.a, density.workers)
             picked = block[walked]
             R_k = clamp.within(cand_p[picked], R_k[walked])
             new, members, w_members, owner = _create_records(
@@ -244,11 +245,13 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
 
 def _accumulate(w_sum: np.ndarray, E_sum: np.ndarray, members: np.ndarray, w: np.ndarray, E_k: np.ndarray):
     """w_sum[c] += w, E_sum[c] += w E_k over (m,) pairs (candidate c, weight w, E_k (m, 3)), in place."""
-    # bincount per channel: np.add.at was 2x slower here (Cornell Final pass 2, 1.8M photons).
-    c = len(w_sum)
-    w_sum += np.bincount(members, weights=w, minlength=c)
+    # bincount per channel (np.add.at was 2x slower here), over the touched candidates only: a block's
+    # zones hold at most ~_ZONE_PAIRS pairs, and counts over all of Sponza's 2.9 M photons cost 23 MB each.
+    touched, slot = np.unique(members, return_inverse=True)
+    c = len(touched)
+    w_sum[touched] += np.bincount(slot, weights=w, minlength=c)
     for channel in range(3):
-        E_sum[:, channel] += np.bincount(members, weights=w * E_k[:, channel], minlength=c)
+        E_sum[touched, channel] += np.bincount(slot, weights=w * E_k[:, channel], minlength=c)
 
 
 def _next_block(order: np.ndarray, start: int, w_sum: np.ndarray, threshold: float, size: int
@@ -275,14 +278,14 @@ def _radii(density: PhotonDensity, p: np.ndarray, n: np.ndarray, params: CachePa
     return clamp.clamp(p, np.clip(R_k, params.R_min, params.R_max))
 
 
-def _walk(p: np.ndarray, n: np.ndarray, R_k: np.ndarray, a: float) -> np.ndarray:
+def _walk(p: np.ndarray, n: np.ndarray, R_k: np.ndarray, a: float, workers: int = 1) -> np.ndarray:
     """Positions of the candidates (B, 3) the sequential walk over them would place records at.
 
     Candidate i gets a record unless the record of an earlier picked candidate j accepts it
     (Equation 2 with R_j). Resolved in rounds, each deciding every candidate whose earlier
     coverers are decided; the result is the sequential walk's, rounds ~ the longest chain.
     """
-    lengths, i = ball_pairs(cKDTree(p), p, a * R_k)
+    lengths, i = ball_pairs(cKDTree(p), p, a * R_k, workers)
     j = np.repeat(np.arange(len(p)), lengths)
     keep = i > j
     j, i = j[keep], i[keep]
@@ -330,7 +333,7 @@ def _create_records(density, p_k, n_k, R_k, params: CacheParameters, caster, can
     chunk = _Chunk(p_k, n_k, zone.E_k, R_k, zone.used, wall, np.split(zone.photons, np.cumsum(zone.lengths)[:-1]))
     if candidate_is_photon:
         return chunk, zone.photons, zone.w, np.repeat(np.arange(B), zone.lengths)
-    lengths, members = ball_pairs(cand_tree, p_k, a * R_k)
+    lengths, members = ball_pairs(cand_tree, p_k, a * R_k, density.workers)
     owner = np.repeat(np.arange(B), lengths)
     stats.kd_queries += B
     P, N = cand_p[members], cand_n[members]
@@ -381,7 +384,7 @@ class _Records:
 
 
 # --------------------------------------------------------------------------- neighbour clamping [KBPZ06]
-def neighbour_clamp(p: np.ndarray, R: np.ndarray) -> np.ndarray:
+def neighbour_clamp(p: np.ndarray, R: np.ndarray, workers: int = 1) -> np.ndarray:
     """One min-plus pass: R_k <- min_j (R_j + |p_k - p_j|) over neighbours within R_k ([KBPZ06]).
 
     Only a neighbour closer than R_k can lower R_k, so each record queries its own ball (one
@@ -396,9 +399,9 @@ def neighbour_clamp(p: np.ndarray, R: np.ndarray) -> np.ndarray:
     # In chunks of records: a ball query's pairs are Python ints (~40 bytes each), and records of
     # metre-sized R pair with thousands of others (Sponza 2048^2's 74k hole records: 3.4 GB at once).
     for s in slices(len(p), CLAMP_CHUNK):
-        lengths, j = ball_pairs(tree, p[s], R[s])
+        lengths, j = ball_pairs(tree, p[s], R[s], workers)
         k = np.repeat(np.arange(s.start, s.stop), lengths)
-        np.minimum.at(out, k, R[j] + np.linalg.norm(p[k] - p[j], axis=1))
+        np.minimum.at(out, k, R[j] + norms(p[k] - p[j]))
     return out
 
 
@@ -409,8 +412,8 @@ class _NeighbourClamp:
     while that is no more than twice as large), so each record is re-indexed O(log K) times.
     """
 
-    def __init__(self, existing: IrradianceCache | None, enabled: bool = True):
-        self.enabled = enabled
+    def __init__(self, existing: IrradianceCache | None, enabled: bool = True, workers: int = 1):
+        self.enabled, self.workers = enabled, workers
         self.levels = []  # (p (k, 3), R (k,), tree)
         if enabled and existing is not None and len(existing):
             self.add(existing.p, existing.R)
@@ -421,9 +424,9 @@ class _NeighbourClamp:
         if not self.enabled:
             return R
         for p_j, R_j, tree in self.levels:
-            lengths, j = ball_pairs(tree, p, R)
+            lengths, j = ball_pairs(tree, p, R, self.workers)
             k = np.repeat(np.arange(len(p)), lengths)
-            np.minimum.at(R, k, R_j[j] + np.linalg.norm(p_j[j] - p[k], axis=1))
+            np.minimum.at(R, k, R_j[j] + norms(p_j[j] - p[k]))
         return R
 
     def within(self, p: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -435,11 +438,11 @@ class _NeighbourClamp:
         R = np.array(R, np.float64)
         if not self.enabled or len(p) < 2:
             return R
-        lengths, j = ball_pairs(cKDTree(p), p, R)
+        lengths, j = ball_pairs(cKDTree(p), p, R, self.workers)
         k = np.repeat(np.arange(len(p)), lengths)
         earlier = j < k
         k, j = k[earlier], j[earlier]
-        np.minimum.at(R, k, R[j] + np.linalg.norm(p[j] - p[k], axis=1))
+        np.minimum.at(R, k, R[j] + norms(p[j] - p[k]))
         return R
 
     def add(self, p: np.ndarray, R: np.ndarray):

@@ -23,6 +23,7 @@ import numpy as np
 
 from . import sampling
 from .sampling import concentric_disk, cosine_hemisphere, orthonormal_basis, uniform_cone, uniform_sphere, uniform_triangle
+from .vectors import norms, unit
 
 
 class SceneError(ValueError):
@@ -68,11 +69,6 @@ class ShadowSamples:
 
 def _samples(kind, key, caster, idx, p, n_g, targets, weight, ok, colour, samples, directions=None):
     return ShadowSamples(kind, key, idx, targets, weight, ok, colour, samples, directions)
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    length = np.linalg.norm(v, axis=-1, keepdims=True)
-    return np.divide(v, length, out=np.zeros_like(v), where=length > 0)
 
 
 def _dot(a, b):
@@ -367,7 +363,7 @@ def _point_like(kind, light, attenuation, caster, p, n_s, n_g, samples, rng):
     if not np.any(P > 0):
         return None
     delta = c - p
-    D = np.linalg.norm(delta, axis=1)
+    D = norms(delta)
     # Which points can receive anything: not at the light, light not wholly below the surface,
     # inside the spot cone widened by the light's angular radius.
     can = (D > 0) & (_dot(n_g, delta) > -r) & (_dot(n_s, delta) > -r)
@@ -377,7 +373,7 @@ def _point_like(kind, light, attenuation, caster, p, n_s, n_g, samples, rng):
         angle = np.arccos(np.clip(_dot(v, attenuation.axis), -1.0, 1.0))
         can &= (angle < np.arccos(np.clip(attenuation.cos_h, -1.0, 1.0)) + spread) | (D <= r)
     idx = np.flatnonzero(can)
-    pk, nsk, ngk = p[idx], n_s[idx], n_g[idx]
+    pk, nsk, ngk = (np.take(v, idx, axis=0) for v in (p, n_s, n_g))
 
     if r == 0.0:
         # E = P cos_s / (4 pi d^2) x spot mask, one shadow ray.
@@ -398,7 +394,7 @@ def _point_like(kind, light, attenuation, caster, p, n_s, n_g, samples, rng):
         # L cos_s cos_l / d^2 / pdf_A = P cos_s cos_l / (4 pi d^2).
         q, n_disk, _ = sampling.disk_facing(u, pk, c, r)
         w = q - pk[:, None, :]
-        d = np.linalg.norm(w, axis=2)
+        d = norms(w)
         w = np.divide(w, d[..., None], out=np.zeros_like(w), where=d[..., None] > 0)
         cos_s = _dot(nsk[:, None, :], w)
         cos_l = -_dot(n_disk[:, None, :], w)
@@ -452,7 +448,7 @@ def _sphere_samples(u, pk, nsk, ngk, D, c, r, attenuation):
 def _sun(light: "SunLight", caster, p, n_s, n_g, samples, rng):
     """Sun: E = S cos_s, or a cone of half-angle a with radiance S / (pi sin^2 a)."""
     S = _rgb(light.irradiance, light.name)
-    s = _unit(np.asarray(light.direction, np.float64)[None])[0]
+    s = unit(np.asarray(light.direction, np.float64)[None])[0]
     alpha = float(np.clip(light.half_angle, 0.0, np.pi / 2))
     n = len(p)
     if not np.any(S > 0) or not np.any(s):
@@ -489,16 +485,16 @@ def _area(light: "AreaLight", caster, p, n_s, n_g, samples, rng):
     if not np.any(L > 0) or not (su > 0 and sv > 0 and np.isfinite(su * sv)):
         return None
     c = np.asarray(light.position, np.float64)
-    N = _unit(np.asarray(light.normal, np.float64)[None])[0]
-    U = _unit(np.asarray(light.axis_u, np.float64)[None])[0]
-    V = _unit(np.asarray(light.axis_v, np.float64)[None])[0]
+    N = unit(np.asarray(light.normal, np.float64)[None])[0]
+    U = unit(np.asarray(light.axis_u, np.float64)[None])[0]
+    V = unit(np.asarray(light.axis_v, np.float64)[None])[0]
     # In front of the emitting side, and some corner of the bounding rectangle above the surface.
     front = _dot(p - c, N) > 0
     corners = c + np.array([[a * su / 2, b * sv / 2] for a in (-1, 1) for b in (-1, 1)]) @ np.stack([U, V])
     to_corner = corners[None, :, :] - p[:, None, :]
     above = np.any(_dot(n_g[:, None, :], to_corner) > 0, axis=1) & np.any(_dot(n_s[:, None, :], to_corner) > 0, axis=1)
     idx = np.flatnonzero(front & above)
-    pk, nsk, ngk = p[idx], n_s[idx], n_g[idx]
+    pk, nsk, ngk = (np.take(v, idx, axis=0) for v in (p, n_s, n_g))
     u = sampling.stratified_2d(len(idx), samples, rng)
     if light.shape in ("DISK", "ELLIPSE"):
         xy, pdf_area = sampling.uniform_ellipse(u, su, sv)
@@ -506,7 +502,7 @@ def _area(light: "AreaLight", caster, p, n_s, n_g, samples, rng):
         xy, pdf_area = sampling.uniform_rectangle(u, su, sv)
     q = c + xy[..., 0:1] * U + xy[..., 1:2] * V
     w = q - pk[:, None, :]
-    d = np.linalg.norm(w, axis=2)
+    d = norms(w)
     w = np.divide(w, d[..., None], out=np.zeros_like(w), where=d[..., None] > 0)
     cos_s = _dot(nsk[:, None, :], w)
     cos_l = -_dot(w, N)
@@ -538,7 +534,7 @@ def spot_attenuation(light: "SpotLight"):
     smoothstep(x) = 3x^2 - 2x^3 on [0, 1]; blend 0 is the hard cone cos_a > cos_h.
     Measured against Cycles 5.0 (60 degree cone, blend 1): within 0.0006 at 1..30 degrees.
     """
-    axis = _unit(np.asarray(light.direction, np.float64))
+    axis = unit(np.asarray(light.direction, np.float64))
     cos_h = float(np.cos(light.half_angle))
     width = (1.0 - cos_h) * float(np.clip(light.blend, 0.0, 1.0))
 
@@ -598,7 +594,7 @@ def _emissive(mesh: EmissiveMesh, caster, p, n_s, n_g, samples, rng):
     to_box = box[None] - p[:, None, :]
     can = np.any(_dot(n_g[:, None, :], to_box) > 0, axis=1) & np.any(_dot(n_s[:, None, :], to_box) > 0, axis=1)
     idx = np.flatnonzero(can)
-    pk, nsk, ngk = p[idx], n_s[idx], n_g[idx]
+    pk, nsk, ngk = (np.take(v, idx, axis=0) for v in (p, n_s, n_g))
 
     # Pick a triangle with u0 through the CDF, reuse the remainder of u0 for the position.
     pmf = weight_tri / W
@@ -614,7 +610,7 @@ def _emissive(mesh: EmissiveMesh, caster, p, n_s, n_g, samples, rng):
     q = (1.0 - bary[..., 0:1] - bary[..., 1:2]) * tc[..., 0, :] + bary[..., 0:1] * tc[..., 1, :] \
         + bary[..., 1:2] * tc[..., 2, :]
     w = q - pk[:, None, :]
-    d = np.linalg.norm(w, axis=2)
+    d = norms(w)
     w = np.divide(w, d[..., None], out=np.zeros_like(w), where=d[..., None] > 0)
     cos_s = _dot(nsk[:, None, :], w)
     facing = -_dot(n_tri[k], w)

@@ -15,6 +15,7 @@ import numpy as np
 from .constants import FALLBACK_SAME_SIDE_COS, HOLE_NEIGHBOURS, VISIBILITY_LIFT
 from .density import PhotonDensity
 from .photons import PhotonLighting
+from .vectors import norms
 
 
 def nearest_photon_irradiance(caster, density: PhotonDensity, lighting: PhotonLighting, q: np.ndarray,
@@ -45,8 +46,8 @@ def nearest_photon_irradiance(caster, density: PhotonDensity, lighting: PhotonLi
 
 def _sees(caster, density: PhotonDensity, q: np.ndarray, n: np.ndarray, photon: np.ndarray) -> np.ndarray:
     """(h,) bool: does each hit see its photon? Both ends lifted as in :mod:`core.zone_visibility`."""
-    p_ph, n_ph = density.p[photon], density.n[photon].astype(np.float64)
-    lift = VISIBILITY_LIFT * np.linalg.norm(p_ph - q, axis=1)[:, None]
+    p_ph, n_ph = np.take(density.p, photon, axis=0), np.take(density.n, photon, axis=0).astype(np.float64)
+    lift = VISIBILITY_LIFT * norms(p_ph - q)[:, None]
     return caster.visible_between(q + lift * n, None, p_ph + lift * n_ph, None)
 
 
@@ -60,7 +61,7 @@ def _nearest_seen(caster, density: PhotonDensity, lighting: PhotonLighting, q: n
         return E, 0
     _, near = density.tree.query(q, k=k)
     near = np.asarray(near, np.int64).reshape(len(q), k)
-    agree = np.einsum("hkj,hj->hk", density.n[near].astype(np.float64), n) > FALLBACK_SAME_SIDE_COS
+    agree = np.einsum("hkj,hj->hk", np.take(density.n, near, axis=0).astype(np.float64), n) > FALLBACK_SAME_SIDE_COS
     agree &= near != hidden[:, None]
     row, col = np.nonzero(agree)
     seen = np.zeros_like(agree)
@@ -79,11 +80,13 @@ def _nearest_on_side(density: PhotonDensity, q: np.ndarray, n: np.ndarray, k: in
     """
     _, nearest = density.tree.query(q, k=1)
     pick = np.asarray(nearest, np.int64).reshape(len(q))
-    wrong = np.flatnonzero(np.einsum("hj,hj->h", density.n[pick].astype(np.float64), n) <= FALLBACK_SAME_SIDE_COS)
+    n_pick = np.take(density.n, pick, axis=0).astype(np.float64)
+    wrong = np.flatnonzero(np.einsum("hj,hj->h", n_pick, n) <= FALLBACK_SAME_SIDE_COS)
     if len(wrong) and k > 1:
         _, near = density.tree.query(q[wrong], k=k)
         near = np.asarray(near, np.int64).reshape(len(wrong), k)
-        same = np.einsum("hkj,hj->hk", density.n[near].astype(np.float64), n[wrong]) > FALLBACK_SAME_SIDE_COS
+        n_near = np.take(density.n, near, axis=0).astype(np.float64)
+        same = np.einsum("hkj,hj->hk", n_near, n[wrong]) > FALLBACK_SAME_SIDE_COS
         pick[wrong] = np.where(same.any(axis=1), near[np.arange(len(wrong)), np.argmax(same, axis=1)], -1)
     else:
         pick[wrong] = -1

@@ -319,7 +319,7 @@ def build_cache(run: "_Run", photons: PhotonMap, params: CacheParameters
     settings, progress, stats = run.settings, run.progress, run.stats
     progress.begin("Pass 2: irradiance cache")
     with stats.stage("cache"):
-        density = PhotonDensity(photons)
+        density = PhotonDensity(photons, run.executor.workers)
         cache, zones, lighting, build = cache_from_photons(density, params, settings.seed, progress, run.caster())
     stats.set(records=build.records, kd_queries=build.kd_queries, R_min=params.R_min, R_max=params.R_max,
               wall_rays=build.wall_rays)
@@ -343,7 +343,7 @@ def _hole_sources(run: "_Run", entry, params: CacheParameters):
     cache, photons, lighting = entry
     if photons is None or len(photons) == 0:
         return None, None
-    density = run.density if run.density is not None else PhotonDensity(photons)
+    density = run.density if run.density is not None else PhotonDensity(photons, run.executor.workers)
     sources = None
     if run.settings.refine:  # hole records' gathering reads indirect light from the refined cache
         sources, counters = gather_sources(density, lighting, cache, params, run.settings, run.scene, run.caster(),

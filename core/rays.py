@@ -25,6 +25,7 @@ from embreex import mesh_construction, rtcore_scene
 from .constants import OFF_PLANE, TRANSPARENT_MAX_LAYERS
 from .executor import Executor, serial_executor
 from .scene import unit_face_normals
+from .vectors import norms, unit
 
 # Relative offset against self-intersection: float32 carries ~6e-8 relative
 # precision, so 1e-5 of the scene diagonal clears the rounding of any vertex
@@ -313,7 +314,7 @@ class RayCaster:
         start = np.asarray(p, np.float64) + self.epsilon * np.asarray(n, np.float64)
         end = np.asarray(q, np.float64) + self.epsilon * np.asarray(m, np.float64)
         segment = end - start
-        dist = np.linalg.norm(segment, axis=1)
+        dist = norms(segment)
         directions = np.divide(segment, dist[:, None], out=np.zeros_like(segment), where=dist[:, None] > 0)
         return (dist == 0) | ~self.occluded(start, directions, dist)
 
@@ -341,7 +342,7 @@ class RayCaster:
         start = self.offset_origins(points, normals, toward)
         end = targets if target_normals is None else self.offset_origins(targets, target_normals, -toward)
         segment = end - start
-        dist = np.linalg.norm(segment, axis=1)
+        dist = norms(segment)
         directions = np.divide(segment, dist[:, None], out=np.zeros_like(segment), where=dist[:, None] > 0)
         # Stop short of the far end by epsilon so a target on a surface never hits it.
         t_max = np.maximum(dist - (self.epsilon if target_normals is None else 0.0), 0.0)
@@ -373,9 +374,7 @@ def _shipped_scene(digest: str, positions: np.ndarray):
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
-    v = np.asarray(v, dtype=np.float64)
-    length = np.linalg.norm(v, axis=1, keepdims=True)
-    return np.divide(v, length, out=np.zeros_like(v), where=length > 0)
+    return unit(np.asarray(v, dtype=np.float64))
 
 
 def _limits(t_max, n: int):

@@ -57,14 +57,16 @@ def trace_real(caster, frames, cells: np.ndarray, sums: CellSums, rng: np.random
     C = H.cells
     rec = cells // C
     w_local = H.sample_cells(cells % C, rng.random((len(cells), 2)))
-    d_world = w_local[:, :1] * t1[rec] + w_local[:, 1:2] * t2[rec] + w_local[:, 2:3] * n[rec]
+    t1_rec, t2_rec, n_rec = (np.take(v, rec, axis=0) for v in (t1, t2, n))
+    d_world = w_local[:, :1] * t1_rec + w_local[:, 1:2] * t2_rec + w_local[:, 2:3] * n_rec
     # Push the origins off the record's surface once; hit points are that origin plus t.
-    origin = caster.offset_origins(p_k[rec], n[rec], d_world)
+    origin = caster.offset_origins(np.take(p_k, rec, axis=0), n_rec, d_world)
     hits = caster.intersect(origin, d_world)
     sums.add_real_rays(cells, w_local, hits.t)
     hit = np.flatnonzero(hits.hit)
-    found = RealHits(cells[hit], hits.triangle[hit], hits.barycentric[hit],
-                     origin[hit] + d_world[hit] * hits.t[hit, None], d_world[hit])
+    d_hit = np.take(d_world, hit, axis=0)
+    found = RealHits(cells[hit], hits.triangle[hit], np.take(hits.barycentric, hit, axis=0),
+                     np.take(origin, hit, axis=0) + d_hit * hits.t[hit, None], d_hit)
     inv_sum = np.bincount(rec[hit], weights=1.0 / np.maximum(hits.t[hit], 1e-300), minlength=sums.B)
     inv_n = np.bincount(rec[hit], minlength=sums.B).astype(np.float64)
     sums.add_distances(inv_sum, inv_n)
@@ -93,7 +95,7 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
     E_direct + E_indirect from the cell (one occlusion ray); the rest are shaded as above.
     """
     rho = albedo_at(scene, triangle, barycentric).astype(np.float64)
-    n_face = caster.face_normals[triangle]
+    n_face = np.take(caster.face_normals, triangle, axis=0)
     back = np.einsum("ij,ij->i", n_face, direction) > 0  # the ray reached the face's back side
     n_hit = np.where(back[:, None], -n_face, n_face)
     if sources.hit_grid is None:

@@ -131,7 +131,7 @@ def refine_records(scene, caster, sources: GatherSources, cache: IrradianceCache
             counters[key] += r[key]
     refined.refined[:] = True
     if params.neighbour_clamp:  # deviation: neighbour-clamp, docs/DEVIATIONS.md
-        refined.R = neighbour_clamp(refined.p, refined.R)
+        refined.R = neighbour_clamp(refined.p, refined.R, executor.workers)
     # The zones changed size: find their walls again (one ray per sector and record).
     if params.wall_sectors:  # deviation: wall-sectors, docs/DEVIATIONS.md
         refined.wall = wall_distances(caster, refined.p, refined.n, params.a * refined.R)

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .vectors import norms
+
 
 # --------------------------------------------------------------------------- frames
 def orthonormal_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -244,7 +246,7 @@ def sphere_cone(u: np.ndarray, p: np.ndarray, centre: np.ndarray, radius: float)
     pdf : (n, m) float64 solid-angle density 1 / (2 pi (1 - cos_max)), cos_max = sqrt(1 - r^2/D^2).
     """
     delta = np.asarray(centre, np.float64) - p
-    D = np.linalg.norm(delta, axis=-1)
+    D = norms(delta)
     axis = delta / D[:, None]
     sin2 = np.minimum((radius / D) ** 2, 1.0)
     # 1 - cos for cos = sqrt(1 - sin^2), written without cancellation.
@@ -278,7 +280,7 @@ def disk_facing(u: np.ndarray, p: np.ndarray, centre: np.ndarray, radius: float)
     """
     centre = np.asarray(centre, np.float64)
     delta = p - centre
-    D = np.linalg.norm(delta, axis=-1, keepdims=True)
+    D = norms(delta, keepdims=True)
     n_disk = np.divide(delta, D, out=np.tile([0.0, 0.0, 1.0], (len(p), 1)), where=D > 0)
     t1, t2 = orthonormal_basis(n_disk)
     d, pdf = concentric_disk(u)

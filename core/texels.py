@@ -13,6 +13,7 @@ import numpy as np
 
 from .raster import footprint_points, rasterize
 from .scene import Scene
+from .vectors import norms
 
 
 @dataclass(frozen=True)
@@ -151,9 +152,9 @@ def footprint_texel_points(scene: Scene, target_index: int, texels: np.ndarray, 
 
 def _on_surface(geometry, face_n, tri, b):
     """Position, shading normal and geometric normal (n, 3) of barycentrics b (n, 3) on triangles tri (n,)."""
-    p = np.einsum("nk,nkj->nj", b, geometry.positions[tri])
-    n_s = np.einsum("nk,nkj->nj", b, geometry.normals[tri].astype(np.float64))
-    n_g = face_n[tri]
+    p = np.einsum("nk,nkj->nj", b, np.take(geometry.positions, tri, axis=0))
+    n_s = np.einsum("nk,nkj->nj", b, np.take(geometry.normals, tri, axis=0).astype(np.float64))
+    n_g = np.take(face_n, tri, axis=0)
     return p, _normalise_or(n_s, n_g), n_g
 
 
@@ -169,7 +170,7 @@ def splat(values: np.ndarray, points: TexelPoints, raster: TargetRaster) -> np.n
 
 
 def _normalise_or(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
-    length = np.linalg.norm(v, axis=1, keepdims=True)
+    length = norms(v, keepdims=True)
     ok = length[:, 0] > 1e-12
     out = fallback.copy()
     out[ok] = v[ok] / length[ok]

@@ -43,8 +43,9 @@ def inside_geometry(caster: RayCaster, face_normals: np.ndarray, p: np.ndarray, 
     if m == 0:
         return inside, 0
     majority = int(np.floor(BACKFACE_FRACTION * rays)) + 1  # back hits that make a sample inside
-    # All directions are drawn up front, so the verdict does not depend on the round schedule.
-    local = cosine_hemisphere(rng.random((m, rays, 2)))[0]
+    # All random numbers are drawn up front, so the verdict does not depend on the round schedule;
+    # directions are made only for the rays a round casts (most samples settle after the first).
+    u = rng.random((m, rays, 2))
     t1, t2 = orthonormal_basis(n)
     back = np.zeros(m, np.int64)
     open_ = np.arange(m)  # samples whose verdict is still open
@@ -52,14 +53,15 @@ def inside_geometry(caster: RayCaster, face_normals: np.ndarray, p: np.ndarray, 
     first = rays - majority + 1  # the fewest rays after which "no back face yet" settles "outside"
     while len(open_) and done < rays:
         step = min(first if done == 0 else LATER_ROUND, rays - done)
-        w = local[open_, done:done + step]
-        d = (w[..., :1] * t1[open_, None] + w[..., 1:2] * t2[open_, None] + w[..., 2:3] * n[open_, None])
-        d = d.reshape(-1, 3)
-        hits = caster.intersect(np.repeat(p[open_], step, axis=0), d, normals=np.repeat(n[open_], step, axis=0))
+        w = cosine_hemisphere(u[open_, done:done + step])[0]
+        t1_o, t2_o, n_o = (np.take(v, open_, axis=0)[:, None] for v in (t1, t2, n))
+        d = (w[..., :1] * t1_o + w[..., 1:2] * t2_o + w[..., 2:3] * n_o).reshape(-1, 3)
+        ray_sample = np.repeat(open_, step)
+        hits = caster.intersect(np.take(p, ray_sample, axis=0), d, normals=np.take(n, ray_sample, axis=0))
         cast += len(d)
         hit = hits.hit
         is_back = np.zeros(len(d), bool)
-        is_back[hit] = np.einsum("ij,ij->i", face_normals[hits.triangle[hit]], d[hit]) > 0
+        is_back[hit] = np.einsum("ij,ij->i", np.take(face_normals, hits.triangle[hit], axis=0), d[hit]) > 0
         back[open_] += is_back.reshape(-1, step).sum(axis=1)
         done += step
         b = back[open_]

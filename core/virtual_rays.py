@@ -12,6 +12,7 @@ from .constants import ABOVE_PLANE, RADIANCE_FLOOR, VIRTUAL_MIN_PER_CELL, VIRTUA
 from .gather_cells import CellSums
 from .hemisphere import to_local
 from .zone_visibility import zone_visibility
+from .vectors import norms
 
 
 def fill_virtual(caster, sources, frames, zone_lengths: np.ndarray, zone_photons: np.ndarray,
@@ -44,7 +45,7 @@ def fill_virtual(caster, sources, frames, zone_lengths: np.ndarray, zone_photons
     # Figure 4b: the ray from p_k toward the photon's previous hit, in the record's frame.
     v = density.last_hit[ph] - p_k[rec]
     local = to_local(v, t1[rec], t2[rec], n[rec])
-    dist = np.linalg.norm(local, axis=1)
+    dist = norms(local)
     above = local[:, 2] > ABOVE_PLANE * np.maximum(dist, 1e-300)
     rec, ph, prev, local, dist = rec[above], ph[above], prev[above], local[above], dist[above]
     if sources.deviations.path_visibility:  # deviation: path-visibility, docs/DEVIATIONS.md
@@ -90,6 +91,6 @@ def _zone_photons_with_paths(density, p_k, zone_lengths, zone_photons, zone_radi
     keep = prev >= 0
     rec, ph, prev = rec[keep], ph[keep], prev[keep].astype(np.int64)
     offset = density.p[ph] - p_k[rec]
-    offset_length = np.linalg.norm(offset, axis=1)
+    offset_length = norms(offset)
     near = offset_length < zone_radius[rec]
     return rec[near], ph[near], prev[near], offset[near], offset_length[near]

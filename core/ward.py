@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .vectors import norms
+
 DENOMINATOR_FLOOR = 1e-6
 IN_FRONT = 0.05
 
@@ -28,7 +30,7 @@ def ward_weight(p: np.ndarray, n: np.ndarray, p_k: np.ndarray, n_k: np.ndarray, 
     p, n : (m, 3) query points and unit normals; p_k, n_k : (m, 3) records, or (3,) for
     one record against many points; R_k : (m,) or a scalar, > 0.
     """
-    return weight_from(np.linalg.norm(p - p_k, axis=-1), np.einsum("...j,...j->...", n, n_k), R_k)
+    return weight_from(norms(p - p_k), np.einsum("...j,...j->...", n, n_k), R_k)
 
 
 def weight_from(d: np.ndarray, cos: np.ndarray, R_k: np.ndarray) -> np.ndarray:

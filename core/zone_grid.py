@@ -57,22 +57,22 @@ class ZoneGrid:
         record = np.repeat(np.arange(K, dtype=np.int64), counts)
         # Offset of each entry inside its record's box, unravelled over the box's span.
         local = np.arange(len(record), dtype=np.int64) - np.repeat(np.cumsum(counts) - counts, counts)
-        s = span[record]
-        ix = lo[record, 0] + local % s[:, 0]
-        iy = lo[record, 1] + (local // s[:, 0]) % s[:, 1]
-        iz = lo[record, 2] + local // (s[:, 0] * s[:, 1])
+        s, lo_r = np.take(span, record, axis=0), np.take(lo, record, axis=0)
+        ix = lo_r[:, 0] + local % s[:, 0]
+        iy = lo_r[:, 1] + (local // s[:, 0]) % s[:, 1]
+        iz = lo_r[:, 2] + local // (s[:, 0] * s[:, 1])
         key = self._key(ix, iy, iz)
         order = np.argsort(key, kind="stable")  # stable: records ascend within a cell
         key = key[order]
         self.records = record[order]
         # Each entry carries its record's centre and squared zone: the lookup reads them in runs.
-        self.entry_p = p[self.records]
+        self.entry_p = np.take(p, self.records, axis=0)
         self.entry_zone2 = (zone * zone)[self.records]
         self.entries = len(key)
         n_cells = int(self.dims.prod())
         if n_cells <= DENSE_CELLS_PER_ENTRY * max(self.entries, 1):
             # A dense table of every cell's first entry: one read per point instead of a binary search.
-            self.first = np.searchsorted(key, np.arange(n_cells + 1, dtype=np.int64))
+            self.first = np.concatenate([[0], np.cumsum(np.bincount(key, minlength=n_cells))])
             self.cells = None
         else:
             self.cells, self.start = np.unique(key, return_index=True)
@@ -100,11 +100,12 @@ class ZoneGrid:
             rows_in, slot = inside[found], slot[found]
             start, count = self.start[slot], self.stop[slot] - self.start[slot]
         entry = np.arange(int(count.sum()), dtype=np.int64) + np.repeat(start - (np.cumsum(count) - count), count)
-        d = np.repeat(q[rows_in], count, axis=0) - self.entry_p[entry]
+        rows = np.repeat(rows_in, count)
+        d = np.take(q, rows, axis=0) - np.take(self.entry_p, entry, axis=0)
         # Summed in cKDTree's order (x, y, z), so the boundary decisions match a kd-tree ball query.
         d2 = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
         keep = np.flatnonzero(d2 <= self.entry_zone2[entry])
-        return np.repeat(rows_in, count)[keep], self.records[entry[keep]]
+        return rows[keep], self.records[entry[keep]]
 
 
 MORTON_BITS = 10

@@ -1,0 +1,24 @@
+"""Lengths and directions of arrays of 3-vectors, for the hot paths.
+
+``np.linalg.norm(v, axis=-1)`` squares through ``conj()`` and a generic reduction: about 3.5x
+the cost of the explicit sum below (19 against 5.5 ms for a million vectors), which adds the
+same squares in the same order and so returns the same bits (tests/test_vectors.py).
+Row gathers in the hot paths use ``np.take(a, index, axis=0)`` for the same reason: 2.5-3.5x
+cheaper than ``a[index]`` on (n, 3) arrays, numpy 1.26 and 2.3 alike, and equal.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def norms(v: np.ndarray, keepdims: bool = False) -> np.ndarray:
+    """Euclidean length of each 3-vector along the last axis of ``v`` (..., 3), in v's float type."""
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    length = np.sqrt(x * x + y * y + z * z)
+    return length[..., None] if keepdims else length
+
+
+def unit(v: np.ndarray) -> np.ndarray:
+    """``v`` (..., 3) scaled to unit length; zero vectors stay zero."""
+    length = norms(v, keepdims=True)
+    return np.divide(v, length, out=np.zeros_like(v), where=length > 0)
