@@ -72,6 +72,8 @@ _BLOCK = 2048
 _ZONE_PAIRS = 262_144
 CLAMP_CHUNK = 1024
 """Records whose neighbour-clamp balls are queried together (their pairs are held as Python lists)."""
+CLAMP_NEIGHBOURS = 16
+"""Nearest records asked first by a neighbour clamp (:func:`_clamped`): 16 settle most records."""
 
 
 @dataclass
@@ -399,9 +401,40 @@ def neighbour_clamp(p: np.ndarray, R: np.ndarray, workers: int = 1) -> np.ndarra
     # In chunks of records: a ball query's pairs are Python ints (~40 bytes each), and records of
     # metre-sized R pair with thousands of others (Sponza 2048^2's 74k hole records: 3.4 GB at once).
     for s in slices(len(p), CLAMP_CHUNK):
-        lengths, j = ball_pairs(tree, p[s], R[s], workers)
-        k = np.repeat(np.arange(s.start, s.stop), lengths)
-        np.minimum.at(out, k, R[j] + norms(p[k] - p[j]))
+        out[s] = _clamped(tree, p, R, p[s], R[s], workers)
+    return out
+
+
+def _clamped(tree: cKDTree, p_j: np.ndarray, R_j: np.ndarray, p: np.ndarray, R: np.ndarray, workers: int
+             ) -> np.ndarray:
+    """(B,) min(R, min_j R_j + |p - p_j|) for B points (p (B, 3), R (B,)) against the records of ``tree``
+    (p_j, R_j > 0); only records within R can lower R.
+
+    The records within R are the ball query's; but its pairs are Python ints, and on Sponza 16/m
+    a record of metre-sized R pairs with thousands (48 M pairs in pass 2's clamps). The
+    CLAMP_NEIGHBOURS nearest settle most points: all of the ball when the last of them lies beyond R,
+    else whenever no record past it can do better (each is at least its distance d_k away and has
+    R_j >= min R_j). Only the rest ask for their ball; the result is the ball query's, bit for bit.
+    """
+    out = np.array(R, np.float64)
+    B, n = len(p), tree.n
+    if B == 0 or n == 0:
+        return out
+    k = min(CLAMP_NEIGHBOURS, n)
+    dist, idx = tree.query(p, k=k, distance_upper_bound=float(R.max()), workers=workers)
+    dist, idx = dist.reshape(B, k), idx.reshape(B, k)
+    found = idx < n
+    j = np.where(found, idx, 0)
+    value = np.take(R_j, j) + norms(np.take(p_j, j, axis=0) - p[:, None])
+    out = np.minimum(out, np.where(found, value, np.inf).min(axis=1))
+    # A record beyond d_k cannot go below d_k + min R_j; the margin covers the kd-tree's distance
+    # and norms() differing in the last bits.
+    bound = (dist[:, -1] + float(R_j.min())) * (1.0 - 1e-12)
+    rows = np.flatnonzero(found[:, -1] & (dist[:, -1] < R) & (out >= bound))
+    if len(rows):
+        lengths, j = ball_pairs(tree, p[rows], R[rows], workers)
+        owner = np.repeat(rows, lengths)
+        np.minimum.at(out, owner, np.take(R_j, j) + norms(np.take(p_j, j, axis=0) - np.take(p, owner, axis=0)))
     return out
 
 
@@ -424,9 +457,7 @@ class _NeighbourClamp:
         if not self.enabled:
             return R
         for p_j, R_j, tree in self.levels:
-            lengths, j = ball_pairs(tree, p, R, self.workers)
-            k = np.repeat(np.arange(len(p)), lengths)
-            np.minimum.at(R, k, R_j[j] + norms(p_j[j] - p[k]))
+            R = _clamped(tree, p_j, R_j, p, R, self.workers)
         return R
 
     def within(self, p: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -442,7 +473,7 @@ class _NeighbourClamp:
         k = np.repeat(np.arange(len(p)), lengths)
         earlier = j < k
         k, j = k[earlier], j[earlier]
-        np.minimum.at(R, k, R[j] + norms(p[j] - p[k]))
+        np.minimum.at(R, k, R[j] + norms(np.take(p, j, axis=0) - np.take(p, k, axis=0)))
         return R
 
     def add(self, p: np.ndarray, R: np.ndarray):
