@@ -5,11 +5,13 @@ thousand photons) so the file runs in seconds. The bench runs the large end
 (4M photons, 2048^2 texels: ``bench/README.md``).
 """
 import numpy as np
+from scipy.spatial import cKDTree
 import pytest
 
 from pdic.core.hemisphere import Hemisphere
 from pdic.core.interpolation import CacheLookup
-from pdic.core.irradiance_cache import IrradianceCache, neighbour_clamp
+from pdic.core.irradiance_cache import IrradianceCache, _clamped, neighbour_clamp
+from pdic.core.vectors import norms
 from pdic.core.photons import trace_photons
 from pdic.core.pipeline import bake
 from pdic.core.rays import RayCaster
@@ -241,6 +243,21 @@ def test_randomised_neighbour_clamp_is_1_lipschitz_and_never_grows():
         d = np.linalg.norm(p[:, None] - p[None], axis=2)
         assert (out <= R).all() and (out > 0).all()
         assert (out[:, None] <= out[None, :] + d + 1e-9 * scale).all()
+
+
+def test_clamp_by_nearest_records_equals_the_brute_force_minimum():
+    """_clamped asks the nearest records first and the ball query only where they cannot settle a
+    point; its result is the brute-force min(R, min_j R_j + |p - p_j|) over every record, bit for bit."""
+    rng = np.random.default_rng(16)
+    for trial in range(12):
+        n, B = int(rng.integers(1, 3000)), int(rng.integers(1, 400))
+        flat = [1.0, 1.0, 1e-3 if trial % 2 else 1.0]  # records on a plane, or in a volume
+        p_j, p = rng.random((n, 3)) * flat, rng.random((B, 3)) * flat
+        R_j, R = 10 ** rng.uniform(-3, 0, n), 10 ** rng.uniform(-3, 0.3, B)
+        if trial % 3 == 0:  # large zones and a few tiny ones: the nearest records cannot settle most points
+            R_j = np.where(rng.random(n) < 0.01, 1e-3, rng.uniform(0.5, 1.0, n))
+        brute = np.minimum(R, (R_j[None] + norms(p_j[None] - p[:, None])).min(axis=1))
+        assert np.array_equal(_clamped(cKDTree(p_j), p_j, R_j, p, R, 1), brute)
 
 
 def test_randomised_hemisphere_gathers_are_finite_for_extreme_radiance_and_distance():
