@@ -90,6 +90,10 @@ left Preview +5.4 % bright on Sponza and +10.8 % on the occluded building; 8 x 1
 (16 x 32: +1.2 / +7.9 %, at no lower error), at no measurable cost."""
 COVERAGE_LIFT = 0.05
 """Height above the tangent plane the coverage probes start from, as a fraction of the disc radius."""
+COVERAGE_DEPTH = 0.5
+"""Depth below the tangent plane, as a fraction of the disc radius, to which the coverage probes look
+for surface and photons count: the next of a row of parallel surfaces (a railing's balusters, 30 cm
+apart) lies deeper, where a probe, stopped by the first surface, cannot count it but its photons would."""
 COVERAGE_FLOOR = 0.05
 """The least kernel share a record is granted: at most 20x amplification of its photons."""
 

@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .constants import COVERAGE_ANGLES, COVERAGE_FLOOR, COVERAGE_LIFT, COVERAGE_RINGS, SAME_SURFACE_COS, SECTOR_OFFSET
+from .constants import (COVERAGE_ANGLES, COVERAGE_DEPTH, COVERAGE_FLOOR, COVERAGE_LIFT, COVERAGE_RINGS, SAME_SURFACE_COS,
+                        SECTOR_OFFSET)
 from .record_walls import beyond_wall
 from .sampling import orthonormal_basis
 
@@ -29,8 +30,10 @@ def surface_coverages(caster, p_k: np.ndarray, n_k: np.ndarray, radius: np.ndarr
 
     p_k, n_k : (B, 3) records; radius : (B,) disc radii a R_k; wall : (B, S) float32 or None.
     Probe points over each disc (equal-area rings, COVERAGE_RINGS x COVERAGE_ANGLES) cast a
-    short ray down onto the tangent plane from just above it, all in one batch; a point counts
-    if it finds surface facing like n_k there and is not past a wall. Values in [COVERAGE_FLOOR, 1].
+    short ray down onto the tangent plane from just above it to COVERAGE_DEPTH r below it, all in
+    one batch; a point counts if it finds surface facing like n_k there and is not past a wall,
+    weighted as a photon on that surface is (see below). Values >= COVERAGE_FLOOR (above 1 where
+    the surface is tilted or curved: there is more of it than disc).
     """
     B, m = len(p_k), PROBES
     u, phi = np.tile(_COVERAGE_U, B), np.tile(_COVERAGE_PHI, B)
@@ -39,15 +42,21 @@ def surface_coverages(caster, p_k: np.ndarray, n_k: np.ndarray, radius: np.ndarr
     n_r = n_k[rec]
     offset = (u * radius[rec])[:, None] * (np.cos(phi)[:, None] * t1[rec] + np.sin(phi)[:, None] * t2[rec])
     lift = COVERAGE_LIFT * radius[rec]
-    hits = caster.intersect(p_k[rec] + offset + lift[:, None] * n_r, -n_r, t_max=lift + radius[rec])
+    hits = caster.intersect(p_k[rec] + offset + lift[:, None] * n_r, -n_r, t_max=lift + COVERAGE_DEPTH * radius[rec])
     present = hits.hit.copy()
+    cos = np.ones(len(rec))
     if present.any():
-        face_n = caster.face_normals[hits.triangle[present]]
-        present[present] = np.einsum("ij,ij->i", face_n, n_r[present]) >= SAME_SURFACE_COS
+        cos[present] = np.einsum("ij,ij->i", caster.face_normals[hits.triangle[present]], n_r[present])
+        present[present] = cos[present] >= SAME_SURFACE_COS
     if wall is not None:
         walled = np.flatnonzero(present & np.isfinite(wall).any(axis=1)[rec])
         present[walled] = ~beyond_wall(wall[rec[walled]], offset[walled], n_r[walled])
-    share = (present.reshape(B, m) @ _COVERAGE_KERNEL) / np.sum(_COVERAGE_KERNEL)
+    # Each probe stands for the surface it found as the photons there are counted: the kernel at
+    # the hit's distance from p_k (below the plane, off a curving surface, it is farther than u r),
+    # over the surface's own area (1 / cos of its tilt per unit of disc).
+    depth = np.where(present, hits.t - lift, 0.0) / radius[rec]
+    weight = np.where(present, np.maximum(1.0 - u ** 2 - depth ** 2, 0.0) / np.maximum(cos, SAME_SURFACE_COS), 0.0)
+    share = weight.reshape(B, m).sum(axis=1) / np.sum(_COVERAGE_KERNEL)
     return np.maximum(share, COVERAGE_FLOOR)
 
 

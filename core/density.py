@@ -12,7 +12,7 @@ from itertools import chain
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .constants import COVERAGE_LIFT, R_K_DISTANCE_FLOOR, R_K_SAME_SIDE_COS, R_OVERSAMPLE, SAME_SURFACE_COS, WALL_MASS_FLOOR
+from .constants import COVERAGE_DEPTH, COVERAGE_LIFT, R_K_DISTANCE_FLOOR, R_K_SAME_SIDE_COS, R_OVERSAMPLE, SAME_SURFACE_COS, WALL_MASS_FLOOR
 from .photons import PhotonMap
 from .record_walls import beyond_wall
 from .ward import accepted_from, weight_from
@@ -82,7 +82,7 @@ class PhotonDensity:
         return zone.photons, zone.w, zone.E_k[0], int(zone.used[0])
 
     def records(self, p_k: np.ndarray, n_k: np.ndarray, R_k: np.ndarray, a: float, wall: np.ndarray | None = None,
-                coverage: np.ndarray | None = None, caster=None) -> "ZoneEstimates":
+                coverage: np.ndarray | None = None, caster=None, own: np.ndarray | None = None) -> "ZoneEstimates":
         """Both photon queries of B record creations, gathering each sphere's photons once.
 
         p_k, n_k : (B, 3) record positions and unit normals; R_k : (B,) float64; wall : (B, S)
@@ -100,7 +100,8 @@ class PhotonDensity:
         surface-coverage) replaces the disc's mass by the share of it that is surface and leaves
         out the photons above the surface it measured; with
         ``caster`` (a :class:`~core.rays.RayCaster`; deviation: record-visibility) photons off the
-        record's tangent plane that cannot see it are left out.
+        record's tangent plane that cannot see it are left out. ``own`` (B,) int64 (deviation:
+        leave-one-out): the photon each record sits on, left out of its E_k (it stays in its zone).
         """
         B = len(p_k)
         radius = a * R_k
@@ -116,6 +117,11 @@ class PhotonDensity:
         w = weight_from(np.sqrt(d2), cos, R_r)
         ok = accepted_from(w, a, np.einsum("ij,ij->i", delta, N + n_r), R_r)
         use = self.is_indirect[sphere] & (cos >= SAME_SURFACE_COS)
+        if own is not None:
+            # A record placed at a photon is sure to find that photon at its centre, where the kernel
+            # peaks: with N photons in the disc it adds ~2/N to E_k (Sponza's Preview: +14 %). The
+            # other photons are the unbiased sample of the density around it.
+            use &= sphere != np.repeat(own, lengths)
         mass = np.ones(B)
         if wall is not None:
             # Photons past a wall are another room's: leave them out and normalise the kernel
@@ -129,7 +135,8 @@ class PhotonDensity:
             # The probes see surface up to COVERAGE_LIFT r above the tangent plane; photons higher up (a
             # moulding's step in front of a thin ledge) lie on surface the mass leaves out and would be
             # divided by the ledge's small share alone: measured 6 % of Sponza's texels > 2x Cycles.
-            use &= np.einsum("ij,ij->i", delta, n_r) <= COVERAGE_LIFT * radius[rec]
+            height = np.einsum("ij,ij->i", delta, n_r)
+            use &= (height <= COVERAGE_LIFT * radius[rec]) & (height >= -COVERAGE_DEPTH * radius[rec])
             mass = np.asarray(coverage, np.float64)
         if caster is not None:  # photons on the far side of a surface are not this record's
             check = np.flatnonzero(use)

@@ -133,6 +133,8 @@ class CacheParameters:
     R_max: float
     kernel_coverage: bool = False
     """Normalise E_k's kernel by the share of its disc that is surface (deviation: surface-coverage)."""
+    leave_one_out: bool = False
+    """A record at a photon leaves that photon out of its E_k (deviation: leave-one-out)."""
     wall_sectors: bool = True
     """Records find their walls (deviation: wall-sectors); False leaves every sector open."""
     neighbour_clamp: bool = True
@@ -226,7 +228,7 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
             picked = block[walked]
             R_k = clamp.within(cand_p[picked], R_k[walked])
             new, members, w_members, owner = _create_records(
-                density, cand_p[picked], cand_n[picked], R_k, params, caster, cand_tree, cand_p, cand_n,
+                density, picked, cand_p[picked], cand_n[picked], R_k, params, caster, cand_tree, cand_p, cand_n,
                 candidate_is_photon, stats)
             _accumulate(w_sum, E_sum, members, w_members, new.E[owner])  # Algorithm 1's last line
             # A candidate is covered by its own record even if Equation 2 rounding dropped it.
@@ -308,9 +310,10 @@ def _walk(p: np.ndarray, n: np.ndarray, R_k: np.ndarray, a: float, workers: int 
     return np.flatnonzero(state == 1)
 
 
-def _create_records(density, p_k, n_k, R_k, params: CacheParameters, caster, cand_tree, cand_p, cand_n,
+def _create_records(density, picked, p_k, n_k, R_k, params: CacheParameters, caster, cand_tree, cand_p, cand_n,
                     candidate_is_photon: bool, stats: CacheBuildStats):
-    """B records of Algorithm 1 at candidates (p_k, n_k (B, 3), R_k (B,)): walls, E_k and what they cover.
+    """B records of Algorithm 1 at candidates ``picked`` (B,) (p_k, n_k (B, 3), R_k (B,)): walls, E_k and
+    what they cover.
 
     Returns (the records as a :class:`_Chunk`, covered candidates (m,), their w (m,), their record (m,)).
     """
@@ -331,7 +334,8 @@ def _create_records(density, p_k, n_k, R_k, params: CacheParameters, caster, can
     if caster is not None and params.kernel_coverage:  # deviation: surface-coverage, docs/DEVIATIONS.md
         coverage = surface_coverages(caster, p_k, n_k, a * R_k, est_wall)
         stats.wall_rays += COVERAGE_RINGS * COVERAGE_ANGLES * B
-    zone = density.records(p_k, n_k, R_k, a, est_wall, coverage, est_caster)
+    own = picked if candidate_is_photon and params.leave_one_out else None  # deviation: leave-one-out
+    zone = density.records(p_k, n_k, R_k, a, est_wall, coverage, est_caster, own)
     chunk = _Chunk(p_k, n_k, zone.E_k, R_k, zone.used, wall, np.split(zone.photons, np.cumsum(zone.lengths)[:-1]))
     if candidate_is_photon:
         return chunk, zone.photons, zone.w, np.repeat(np.arange(B), zone.lengths)

@@ -232,7 +232,7 @@ def cache_parameters(scene: Scene, rasters, settings: BakeSettings) -> CachePara
     return CacheParameters(a=settings.a, r_nearest=settings.r_nearest, R_min=max(R_min, R_MIN_FLOOR * scene.extent),
                            R_max=R_max, kernel_coverage=deviations.surface_coverage and not settings.refine,
                            wall_sectors=deviations.wall_sectors, neighbour_clamp=deviations.neighbour_clamp,
-                           record_visibility=deviations.record_visibility)
+                           record_visibility=deviations.record_visibility, leave_one_out=deviations.leave_one_out)
 
 
 # --------------------------------------------------------------------------- direct light

@@ -24,6 +24,9 @@ class Deviations:
     """Records find the walls in their tangent plane; light is not interpolated past them."""
     surface_coverage: bool = True
     """Preview: E_k's kernel is normalised over the surface inside its disc (probe rays)."""
+    leave_one_out: bool = True
+    """A record placed at a photon leaves that photon out of its own E_k (the photon it sits on is
+    certain, not a sample of the density around it)."""
     neighbour_clamp: bool = True
     """R_k <= R_j + |p_k - p_j| between records ([KBPZ06])."""
     probe_rays: bool = True

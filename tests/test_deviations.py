@@ -60,7 +60,7 @@ def test_without_thinning_every_zone_photon_lends_a_virtual_ray():
 
 
 @pytest.mark.parametrize("switch", ["harmonic_cell_radiance", "gradient_limiting", "neighbour_clamp",
-                                    "nearest_photon_fallback", "fine_zones", "gap_fill"])
+                                    "nearest_photon_fallback", "fine_zones", "gap_fill", "leave_one_out"])
 def test_switching_a_deviation_off_changes_the_bake_and_keeps_it_finite(default, switch):
     result, _ = _bake(FINAL, **{switch: False})
     changed = any(not np.array_equal(result.lightmaps[n], default[0].lightmaps[n]) for n in result.lightmaps)

@@ -115,6 +115,47 @@ def test_kernel_coverage_ignores_photons_on_a_step_above_a_bars_face():
     assert abs(covered - true_E) < 0.5 * true_E
 
 
+def test_kernel_coverage_leaves_out_the_next_of_a_row_of_parallel_faces():
+    # A railing: the record sits on one baluster's 4 cm side face; the next baluster's face, 30 cm
+    # behind it (0.6 of the disc radius), faces the same way and is lit. Its photons lie in the
+    # disc's sphere, but a coverage probe stops at the first face: counted, they doubled E_k on
+    # the occluded building's balusters (+37 % over its narrow records against the path referee).
+    face = quad([0.0, -0.02, 0.0], [0.0, 0.04, 0.0], [0.0, 0.0, 1.0])
+    behind = face + np.array([-0.3, 0.0, 0.0])
+    tris = np.concatenate([face, behind])
+    scene = lit(tris, PointLight("p", np.array([1.0, 0.5, 0.5]), np.full(3, 100.0)))
+    caster = RayCaster(tris)
+    traced, _ = trace_photons(scene, caster, 1_000_000, 1, seed=3)
+    density = PhotonDensity(traced)
+    density.is_indirect = np.ones(len(traced), bool)
+    p_k, n_k, R_k, a = np.array([0.0, 0.0, 0.5]), np.array([1.0, 0, 0]), 1.0, 0.5
+    to_lamp = np.array([1.0, 0.5, 0.0])
+    true_E = 100.0 / (4 * np.pi) * to_lamp[0] / np.linalg.norm(to_lamp) ** 3
+    assert (traced.p[:, 0] < -0.29).sum() > 100  # the face behind is lit
+    coverage = surface_coverage(caster, p_k, n_k, a * R_k, None)
+    _, _, covered, used = density.record(p_k, n_k, R_k, a, None, coverage)
+    assert used > 0
+    assert abs(covered[0] - true_E) < 0.12 * true_E
+
+
+def test_a_record_at_a_photon_leaves_that_photon_out_of_its_estimate():
+    # deviation: leave-one-out. The photon a record sits on is where the kernel peaks, and it is
+    # there by construction, not as a sample of the density around it.
+    floor = quad([-1, -1, 0], [2, 0, 0], [0, 2, 0])
+    scene = lit(floor, PointLight("p", np.array([0.0, 0.0, 1.0]), np.full(3, 100.0)))
+    traced, _ = trace_photons(scene, RayCaster(floor), 2_000, 1, seed=5)
+    density = PhotonDensity(traced)
+    density.is_indirect = np.ones(len(traced), bool)
+    i = int(np.argmin(np.linalg.norm(traced.p, axis=1)))
+    p_k, n_k, R_k, a = traced.p[i:i + 1].astype(np.float64), np.array([[0.0, 0, 1]]), np.array([0.2]), 0.5
+    with_own = density.records(p_k, n_k, R_k, a)
+    without = density.records(p_k, n_k, R_k, a, own=np.array([i]))
+    own_share = 2.0 / (np.pi * (a * R_k[0]) ** 2) * traced.power[i].astype(np.float64)  # K(0) x its power
+    assert without.used[0] == with_own.used[0] - 1
+    np.testing.assert_allclose(with_own.E_k[0] - without.E_k[0], own_share, rtol=1e-9)
+    assert np.array_equal(with_own.photons, without.photons)  # it stays in the zone it covers
+
+
 def test_gather_hits_outside_every_record_take_the_nearest_visible_photons_light():
     # Pass 3 reads indirect light at its rays' hits from pass 2's records; where none accepts
     # the hit (a third of Sponza's hits) it must fall back to the nearest photon, not to 0, but
