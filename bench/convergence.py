@@ -72,7 +72,7 @@ def measure(name: str, scene, pair, quality: str, overrides: dict, switches: str
     c, s = result.stats["counters"], result.stats["seconds"]
     inside = {n: cov & interior[n] for n, cov in result.centre_inside.items()}
     row = dict(scene=name, quality=quality, **overrides, deviations=switches, cpu_s=cpu,
-               bias=bias(result.indirect, result.centre_inside, pair),
+               bias=bias(result.indirect, result.centre_inside, pair), bias_interior=bias(result.indirect, inside, pair),
                error=bench_run.noise_corrected_error(result.indirect, result.centre_inside, pair),
                error_interior=bench_run.noise_corrected_error(result.indirect, inside, pair),
                photons_stored=c.get("photons_stored"), photon_bytes=c.get("photon_bytes"),
