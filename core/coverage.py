@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .constants import (COVERAGE_ANGLES, COVERAGE_DEPTH, COVERAGE_FLOOR, COVERAGE_LIFT, COVERAGE_RINGS, SAME_SURFACE_COS,
-                        SECTOR_OFFSET)
+from .constants import (COVERAGE_ANGLES, COVERAGE_DEPTH, COVERAGE_FLOOR, COVERAGE_LIFT, COVERAGE_RINGS,
+                        SAME_SURFACE_COS, SECTOR_OFFSET)
 from .record_walls import beyond_wall
 from .sampling import orthonormal_basis
 

@@ -12,7 +12,8 @@ from itertools import chain
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .constants import COVERAGE_DEPTH, COVERAGE_LIFT, R_K_DISTANCE_FLOOR, R_K_SAME_SIDE_COS, R_OVERSAMPLE, SAME_SURFACE_COS, WALL_MASS_FLOOR
+from .constants import (COVERAGE_DEPTH, COVERAGE_LIFT, R_K_DISTANCE_FLOOR, R_K_SAME_SIDE_COS, R_OVERSAMPLE,
+                        SAME_SURFACE_COS, WALL_MASS_FLOOR)
 from .photons import PhotonMap
 from .record_walls import beyond_wall
 from .ward import accepted_from, weight_from
@@ -119,8 +120,9 @@ class PhotonDensity:
         use = self.is_indirect[sphere] & (cos >= SAME_SURFACE_COS)
         if own is not None:
             # A record placed at a photon is sure to find that photon at its centre, where the kernel
-            # peaks: with N photons in the disc it adds ~2/N to E_k (Sponza's Preview: +14 %). The
-            # other photons are the unbiased sample of the density around it.
+            # peaks: with N photons in the disc it adds ~2/N to E_k (Sponza's Preview records: 1.11 of
+            # the path referee's irradiance with it, 0.97 without). The other photons are the unbiased
+            # sample of the density around it.
             use &= sphere != np.repeat(own, lengths)
         mass = np.ones(B)
         if wall is not None:
