@@ -107,7 +107,8 @@ def build_hit_grid(scene, caster, indirect_at, R_min: float, hits: int, seed: in
                    direct_from: HitGrid | None = None) -> tuple[HitGrid, dict]:
     """The grid over ``scene``'s triangles and counters (cells, shadow rays, fallback rays).
 
-    indirect_at : callable (q (n, 3), n (n, 3)) -> (E_indirect (n, 3), rays): what a hit would read.
+    indirect_at : callable (q (m, 3), n (m, 3)) -> (E_indirect on the side n faces (m, 3), on the
+        other (m, 3), rays): what a hit would read there.
     hits : about how many hits will read the grid; it gets at most HIT_GRID_CELLS_PER_HIT of that
         in cells (both sides counted), so it costs a fraction of the hits it replaces.
     stream : the random stream of the centroids' shadow rays (core/constants.py).
@@ -128,12 +129,10 @@ def build_hit_grid(scene, caster, indirect_at, R_min: float, hits: int, seed: in
                                                            [*np.atleast_1d(stream).tolist(), side], executor,
                                                            progress)
             counters["hit_grid_shadow_rays"] += direct_counters["shadow_rays"]
-
-        def indirect(index, s, n=n):
-            return indirect_at(q[s], n[s])
-
-        parts = executor.map_chunks(indirect, slices(len(q), TEXEL_CHUNK), progress)
-        E_indirect = np.concatenate([e for e, _ in parts]) if parts else np.zeros((0, 3))
-        counters["hit_grid_fallback_rays"] += sum(r for _, r in parts)
+    # Both sides in one pass: a centroid's nearest photons are the same on either side.
+    parts = executor.map_chunks(lambda index, s: indirect_at(q[s], normal[s]), slices(len(q), TEXEL_CHUNK), progress)
+    for side in (0, 1):
+        E_indirect = np.concatenate([part[side] for part in parts]) if parts else np.zeros((0, 3))
         E[side] = E_direct[side] + E_indirect
+    counters["hit_grid_fallback_rays"] += sum(part[2] for part in parts)
     return HitGrid(L, offset, E, E_direct), counters

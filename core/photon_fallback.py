@@ -18,20 +18,52 @@ from .photons import PhotonLighting
 from .vectors import norms
 
 
+class NearestPhotons:
+    """kd-tree answers for a batch of points, each point asked at most once per query: its nearest
+    photon and its k nearest. The hit grid asks for the same cell centroids on both sides of every
+    triangle; a point's neighbours do not depend on the side."""
+
+    def __init__(self, density: PhotonDensity, q: np.ndarray):
+        self.density, self.q = density, q
+        self.k = k = min(HOLE_NEIGHBOURS, len(density.p))
+        self._first = np.full(len(q), -1, np.int64)
+        self._near = np.full((len(q), k), -1, np.int64)
+
+    def nearest(self, rows: np.ndarray) -> np.ndarray:
+        """(r,) int64 the nearest photon of each point ``rows`` (r,) indexes."""
+        ask = np.unique(rows[self._first[rows] < 0])
+        if len(ask):
+            _, nearest = self.density.tree.query(self.q[ask], k=1)
+            self._first[ask] = np.asarray(nearest, np.int64).reshape(len(ask))
+        return self._first[rows]
+
+    def k_nearest(self, rows: np.ndarray) -> np.ndarray:
+        """(r, k) int64 the k nearest photons of each point ``rows`` indexes, nearest first."""
+        ask = np.unique(rows[self._near[rows, 0] < 0])
+        if len(ask):
+            _, near = self.density.tree.query(self.q[ask], k=self.k)
+            self._near[ask] = np.asarray(near, np.int64).reshape(len(ask), self.k)
+        return self._near[rows]
+
+
 def nearest_photon_irradiance(caster, density: PhotonDensity, lighting: PhotonLighting, q: np.ndarray,
-                              n: np.ndarray) -> tuple[np.ndarray, int]:
+                              n: np.ndarray, neighbours: NearestPhotons | None = None,
+                              rows: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """Pass 2's indirect irradiance of the nearest photon on the side ``n`` faces, if the hit sees it.
 
     One visibility ray (both ends lifted as in :mod:`core.zone_visibility`) keeps a photon
     behind a thin wall from lending its light (tests/test_stability.py).
     q, n : (h, 3) hit points and unit normals facing the ray. Returns (E (h, 3) float64,
     rays cast); E is 0 where none of the HOLE_NEIGHBOURS nearest photons is on that side and seen.
+    neighbours, rows : the kd-tree answers to reuse and which of its points q are (h,); by default
+    the points' own.
     """
-    k = min(HOLE_NEIGHBOURS, len(density.p))
     E = np.zeros((len(q), 3))
-    if len(q) == 0 or k == 0:
+    if len(q) == 0 or len(density.p) == 0:
         return E, 0
-    pick = _nearest_on_side(density, q, n, k)
+    if neighbours is None:
+        neighbours, rows = NearestPhotons(density, q), np.arange(len(q))
+    pick = _nearest_on_side(density, neighbours, rows, n)
     found = np.flatnonzero(pick >= 0)
     seen = _sees(caster, density, q[found], n[found], pick[found])
     E[found[seen]] = lighting.E_indirect(pick[found[seen]])
@@ -40,7 +72,8 @@ def nearest_photon_irradiance(caster, density: PhotonDensity, lighting: PhotonLi
     # nearest that agree and are seen lends its light instead. (Hits with no agreeing photon among
     # the k have nothing more to try.)
     hidden = found[~seen]
-    E[hidden], more = _nearest_seen(caster, density, lighting, q[hidden], n[hidden], k, pick[hidden])
+    E[hidden], more = _nearest_seen(caster, density, lighting, q[hidden], n[hidden], neighbours.k_nearest(rows[hidden]),
+                                    pick[hidden])
     return E, len(found) + more
 
 
@@ -52,15 +85,13 @@ def _sees(caster, density: PhotonDensity, q: np.ndarray, n: np.ndarray, photon: 
 
 
 def _nearest_seen(caster, density: PhotonDensity, lighting: PhotonLighting, q: np.ndarray, n: np.ndarray,
-                  k: int, hidden: np.ndarray) -> tuple[np.ndarray, int]:
-    """(E (h, 3), rays): the indirect irradiance of the nearest of the k nearest photons that agree
-    with n and are seen from q (0 where none is); one visibility ray per agreeing candidate other
-    than ``hidden`` (h,), the photon each hit already failed to see."""
+                  near: np.ndarray, hidden: np.ndarray) -> tuple[np.ndarray, int]:
+    """(E (h, 3), rays): the indirect irradiance of the nearest of the k nearest photons ``near`` (h, k)
+    that agree with n and are seen from q (0 where none is); one visibility ray per agreeing candidate
+    other than ``hidden`` (h,), the photon each hit already failed to see."""
     E = np.zeros((len(q), 3))
     if len(q) == 0:
         return E, 0
-    _, near = density.tree.query(q, k=k)
-    near = np.asarray(near, np.int64).reshape(len(q), k)
     agree = np.einsum("hkj,hj->hk", np.take(density.n, near, axis=0).astype(np.float64), n) > FALLBACK_SAME_SIDE_COS
     agree &= near != hidden[:, None]
     row, col = np.nonzero(agree)
@@ -72,19 +103,19 @@ def _nearest_seen(caster, density: PhotonDensity, lighting: PhotonLighting, q: n
     return E, len(row)
 
 
-def _nearest_on_side(density: PhotonDensity, q: np.ndarray, n: np.ndarray, k: int) -> np.ndarray:
-    """(h,) int64 the nearest of the k nearest photons whose normal agrees with n, -1 if none does.
+def _nearest_on_side(density: PhotonDensity, neighbours: NearestPhotons, rows: np.ndarray, n: np.ndarray
+                     ) -> np.ndarray:
+    """(h,) int64 the nearest of the k nearest photons of points ``rows`` whose normal agrees with n, -1
+    if none does.
 
     The nearest photon is on the right side for ~98 % of Sponza's hits: a 1-nearest query
     (40 % cheaper than k = 8) settles those, and only the rest ask for k.
     """
-    _, nearest = density.tree.query(q, k=1)
-    pick = np.asarray(nearest, np.int64).reshape(len(q))
+    pick = neighbours.nearest(rows).copy()
     n_pick = np.take(density.n, pick, axis=0).astype(np.float64)
     wrong = np.flatnonzero(np.einsum("hj,hj->h", n_pick, n) <= FALLBACK_SAME_SIDE_COS)
-    if len(wrong) and k > 1:
-        _, near = density.tree.query(q[wrong], k=k)
-        near = np.asarray(near, np.int64).reshape(len(wrong), k)
+    if len(wrong) and neighbours.k > 1:
+        near = neighbours.k_nearest(rows[wrong])
         n_near = np.take(density.n, near, axis=0).astype(np.float64)
         same = np.einsum("hkj,hj->hk", n_near, n[wrong]) > FALLBACK_SAME_SIDE_COS
         pick[wrong] = np.where(same.any(axis=1), near[np.arange(len(wrong)), np.argmax(same, axis=1)], -1)

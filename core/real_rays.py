@@ -19,7 +19,7 @@ import numpy as np
 from .albedo import albedo as albedo_at
 from .direct import direct_irradiance
 from .gather_cells import CellSums
-from .photon_fallback import nearest_photon_irradiance
+from .photon_fallback import NearestPhotons, nearest_photon_irradiance
 from .zone_grid import spatial_order
 
 
@@ -125,14 +125,31 @@ def indirect_at_hits(caster, sources, q: np.ndarray, n_hit: np.ndarray) -> tuple
     The hits are looked up in Morton order (:func:`~core.zone_grid.spatial_order`): the record grid
     and the photon kd-tree are then walked along neighbouring cells and nodes.
     """
-    order = spatial_order(q)
-    q, n_hit = q[order], n_hit[order]
-    E_sorted, w_sum = sources.lookup.irradiance(q, n_hit)
-    hole = np.flatnonzero(w_sum <= 0)
-    hole_rays = 0
-    if len(hole) and sources.nearest_photon_fallback:
-        E_sorted[hole], hole_rays = nearest_photon_irradiance(caster, sources.density, sources.lighting,
-                                                              q[hole], n_hit[hole])
-    E_indirect = np.empty_like(E_sorted)
-    E_indirect[order] = E_sorted
+    (E_indirect,), hole_rays = _indirect_facing(caster, sources, q, (n_hit,))
     return E_indirect, hole_rays
+
+
+def indirect_on_both_sides(caster, sources, q: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """:func:`indirect_at_hits` at points q on the side n (h, 3) faces and on the other: (E front (h, 3),
+    E back (h, 3), fallback rays). The nearest-photon fallback asks the kd-tree once per point."""
+    (front, back), rays = _indirect_facing(caster, sources, q, (n, -n))
+    return front, back, rays
+
+
+def _indirect_facing(caster, sources, q: np.ndarray, normals: tuple) -> tuple[tuple, int]:
+    order = spatial_order(q)
+    q = q[order]
+    neighbours = NearestPhotons(sources.density, q)
+    out, hole_rays = [], 0
+    for n_hit in normals:
+        n_hit = n_hit[order]
+        E_sorted, w_sum = sources.lookup.irradiance(q, n_hit)
+        hole = np.flatnonzero(w_sum <= 0)
+        if len(hole) and sources.nearest_photon_fallback:
+            E_sorted[hole], rays = nearest_photon_irradiance(caster, sources.density, sources.lighting, q[hole],
+                                                             n_hit[hole], neighbours, hole)
+            hole_rays += rays
+        E_indirect = np.empty_like(E_sorted)
+        E_indirect[order] = E_sorted
+        out.append(E_indirect)
+    return tuple(out), hole_rays

@@ -31,7 +31,7 @@ from .hit_radiance import HitGrid, build_hit_grid
 from .interpolation import CacheLookup
 from .irradiance_cache import CacheParameters, IrradianceCache, Zones, neighbour_clamp
 from .photons import PhotonLighting
-from .real_rays import RealHits, indirect_at_hits, shade_real, trace_real
+from .real_rays import RealHits, indirect_on_both_sides, shade_real, trace_real
 from .record_walls import open_walls, wall_distances
 from .settings import BakeSettings, Deviations
 from .virtual_rays import fill_virtual
@@ -85,7 +85,7 @@ def gather_sources(density: PhotonDensity, lighting: PhotonLighting, records: Ir
         progress.begin(("Pass 3" if use == 0 else "Hole records") + ": irradiance over the hit grid")
     serial = caster.serial()
     hits = len(records) * settings.hemisphere_theta * settings.hemisphere_phi
-    grid, counters = build_hit_grid(scene, caster, lambda q, n: indirect_at_hits(serial, sources, q, n),
+    grid, counters = build_hit_grid(scene, caster, lambda q, n: indirect_on_both_sides(serial, sources, q, n),
                                     params.R_min, hits, settings.seed, [STREAM_HIT_GRID, use], executor, progress,
                                     direct_from)
     return replace(sources, hit_grid=grid), counters

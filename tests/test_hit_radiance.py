@@ -59,7 +59,7 @@ def test_a_cell_holds_the_direct_light_of_its_centroid_and_nothing_behind():
     caster = RayCaster(scene.geometry.positions, scene.extent, make_executor(1), scene.geometry.transmission)
 
     def no_indirect(q, n):
-        return np.zeros((len(q), 3)), 0
+        return np.zeros((len(q), 3)), np.zeros((len(q), 3)), 0
 
     grid, counters = build_hit_grid(scene, caster, no_indirect, R_min=0.1, hits=10_000, seed=0, stream=[14, 0],
                                     executor=make_executor(1), progress=None)
