@@ -137,6 +137,8 @@ def indirect_on_both_sides(caster, sources, q: np.ndarray, n: np.ndarray) -> tup
 
 
 def _indirect_facing(caster, sources, q: np.ndarray, normals: tuple) -> tuple[tuple, int]:
+    """((E_indirect (h, 3) facing each of ``normals``, ...), fallback rays) at points q (h, 3); the
+    sides share one Morton order and one set of kd-tree answers."""
     order = spatial_order(q)
     q = q[order]
     neighbours = NearestPhotons(sources.density, q)
