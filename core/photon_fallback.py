@@ -25,12 +25,13 @@ class NearestPhotons:
 
     def __init__(self, density: PhotonDensity, q: np.ndarray):
         self.density, self.q = density, q
-        self.k = k = min(HOLE_NEIGHBOURS, len(density.p))
-        self._first = np.full(len(q), -1, np.int64)
-        self._near = np.full((len(q), k), -1, np.int64)
+        self.k = min(HOLE_NEIGHBOURS, len(density.p))
+        self._first = self._near = None  # made on the first question: most batches of hits have no hole
 
     def nearest(self, rows: np.ndarray) -> np.ndarray:
         """(r,) int64 the nearest photon of each point ``rows`` (r,) indexes."""
+        if self._first is None:
+            self._first = np.full(len(self.q), -1, np.int64)
         ask = np.unique(rows[self._first[rows] < 0])
         if len(ask):
             _, nearest = self.density.tree.query(self.q[ask], k=1)
@@ -39,6 +40,8 @@ class NearestPhotons:
 
     def k_nearest(self, rows: np.ndarray) -> np.ndarray:
         """(r, k) int64 the k nearest photons of each point ``rows`` indexes, nearest first."""
+        if self._near is None:
+            self._near = np.full((len(self.q), self.k), -1, np.int64)
         ask = np.unique(rows[self._near[rows, 0] < 0])
         if len(ask):
             _, near = self.density.tree.query(self.q[ask], k=self.k)

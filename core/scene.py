@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .lights import AreaLight, EmissiveMesh, Light, PointLight, SceneError, SpotLight, SunLight, World
+from .vectors import unit
 
 __all__ = ["AreaLight", "BakeTarget", "EmissiveMesh", "Geometry", "Light", "Materials", "PointLight", "Scene",
            "SceneError", "SpotLight", "SunLight", "Texture", "World", "recentre", "unit_face_normals"]
@@ -38,9 +39,7 @@ def unit_face_normals(positions: np.ndarray) -> np.ndarray:
     p = np.asarray(positions, dtype=np.float64)
     if len(p) == 0:
         return np.zeros((0, 3))
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+    return unit(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]))
 
 
 @dataclass(frozen=True)
