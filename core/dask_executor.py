@@ -215,7 +215,7 @@ class DaskExecutor(Executor):
         """
         from distributed import as_completed
 
-        shared = self.client.scatter(blob, hash=False)
+        shared = self._scatter(blob)
         suffix = f"-retry{attempt}" if attempt else ""
         futures = [self.client.submit(run_chunk, key, shared, arrays, index, chunks[index],
                                       key=f"{key}{suffix}-{index}", retries=RETRIES) for index in pending]
@@ -249,6 +249,22 @@ class DaskExecutor(Executor):
         finally:
             self.client.cancel([shared])
         return sorted(lost)
+
+    def _scatter(self, data):
+        """``client.scatter(data)``, a worker lost meanwhile raised as ``CommClosedError`` for ``map_chunks`` to retry.
+
+        A worker killed mid-transfer closes the comm (CommClosedError); one killed before the
+        scheduler connects to it makes the scheduler's connect time out, a plain OSError. Chunk
+        functions' own OSErrors (a missing file) are not converted: they are not raised here.
+        """
+        from distributed.comm import CommClosedError
+
+        try:
+            return self.client.scatter(data, hash=False)
+        except CommClosedError:
+            raise
+        except OSError as e:
+            raise CommClosedError(f"a worker was lost while data was scattered: {e}") from e
 
     def _forget_lost_arrays(self):
         """Drop the keys of shared arrays the cluster no longer holds, so the next pickle scatters them again."""
@@ -287,7 +303,7 @@ class DaskExecutor(Executor):
         h.update(array.reshape(-1).view(np.uint8) if array.size else b"")
         digest = h.hexdigest()
         if digest not in self._shared:
-            self._shared[digest] = self.client.scatter(array, hash=False)
+            self._shared[digest] = self._scatter(array)
             self.shipping.array_bytes += array.nbytes
             self.shipping.arrays += 1
             self.shipping.array_shapes.append((array.dtype.str, array.shape))
