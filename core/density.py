@@ -6,6 +6,7 @@ later passes.
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from itertools import chain
 
@@ -18,6 +19,10 @@ from .photons import PhotonMap
 from .record_walls import beyond_wall
 from .ward import accepted_from, weight_from
 from .vectors import norms
+
+
+PARALLEL_RECORDS = 64
+"""Record creations per :meth:`PhotonDensity.records` call from which the threads share the work."""
 
 
 class PhotonDensity:
@@ -105,9 +110,24 @@ class PhotonDensity:
         leave-one-out): the photon each record sits on, left out of its E_k (it stays in its zone).
         """
         B = len(p_k)
-        radius = a * R_k
-        lengths, sphere = ball_pairs(self.tree, p_k, radius, self.workers)
         self.queries += B
+        if self.workers == 1 or B < PARALLEL_RECORDS:
+            return self._records(p_k, n_k, R_k, a, wall, coverage, caster, own, self.workers)
+        # Record placement runs on the calling thread, block after block: its numpy work over a
+        # block's zone pairs is split between the threads (each record's answer is the same).
+        parts = [slice(s, min(s + -(-B // self.workers), B)) for s in range(0, B, -(-B // self.workers))]
+        part = lambda x, s: None if x is None else x[s]  # noqa: E731
+        with ThreadPoolExecutor(len(parts)) as pool:
+            found = list(pool.map(lambda s: self._records(p_k[s], n_k[s], R_k[s], a, part(wall, s),
+                                                          part(coverage, s), caster, part(own, s), 1), parts))
+        return ZoneEstimates(*(np.concatenate(column) for column in zip(*(
+            (z.lengths, z.photons, z.w, z.E_k, z.used) for z in found))))
+
+    def _records(self, p_k, n_k, R_k, a, wall, coverage, caster, own, workers: int) -> "ZoneEstimates":
+        """:meth:`records` over one batch of records, its kd-tree query on ``workers`` threads."""
+        B = len(p_k)
+        radius = a * R_k
+        lengths, sphere = ball_pairs(self.tree, p_k, radius, workers)
         rec = np.repeat(np.arange(B), lengths)
         # np.take and np.repeat: fancy row indexing of (N, 3) arrays costs ~3x more (numpy 1.26).
         P, N = np.take(self.p, sphere, axis=0), np.take(self.n, sphere, axis=0).astype(np.float64)

@@ -200,7 +200,8 @@ def rasterise_targets(run: "_Run") -> list[TargetTexels]:
 
     def lift(target):
         rasterised.append(target.name)
-        points, rasters = texel_stage.lift_texels(replace(scene, targets=(target,)), settings.texel_samples)
+        points, rasters = texel_stage.lift_texels(replace(scene, targets=(target,)), settings.texel_samples,
+                                                  run.executor.map)
         return points, rasters[0]
 
     with stats.stage("rasterise"):

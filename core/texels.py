@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .executor import TEXEL_CHUNK, slices
 from .raster import footprint_points, rasterize
 from .scene import Scene
 from .vectors import norms
@@ -81,6 +82,10 @@ class TexelPoints:
         return merged, inverse
 
 
+LIFT_CHUNK = 8 * TEXEL_CHUNK
+"""Samples lifted onto the surface per task (~0.1 s each)."""
+
+
 @dataclass(frozen=True)
 class TargetRaster:
     """Per-target rasterisation bookkeeping: image size, coverage and Cycles' centre mask."""
@@ -92,10 +97,12 @@ class TargetRaster:
     sample_slice: slice
 
 
-def lift_texels(scene: Scene, samples_per_axis: int) -> tuple[TexelPoints, list[TargetRaster]]:
+def lift_texels(scene: Scene, samples_per_axis: int, map=map) -> tuple[TexelPoints, list[TargetRaster]]:
     """Rasterise every target's light-map UVs and place the samples on the surface.
 
     Degenerate (zero-area) triangles are dropped here: they hold no surface to light.
+    map : runs batches of triangles and of samples (an executor's ``map`` spreads them over
+        threads; the points are the same).
     """
     geometry = scene.geometry
     face_n = geometry.face_normals()
@@ -104,10 +111,12 @@ def lift_texels(scene: Scene, samples_per_axis: int) -> tuple[TexelPoints, list[
     for target in scene.targets:
         keep = areas[target.triangles] > 0
         local = np.flatnonzero(keep)
-        samples = rasterize(target.lightmap_uv[local], target.width, target.height, samples_per_axis)
+        samples = rasterize(target.lightmap_uv[local], target.width, target.height, samples_per_axis, map)
         tri = target.triangles[local[samples.triangle]]
         b = samples.barycentric  # weights of corners 0, 1, 2
-        p, n_s, n_g = _on_surface(geometry, face_n, tri, b)
+        chunks = slices(len(tri), LIFT_CHUNK) or [slice(0, 0)]
+        lifted = list(map(lambda s: _on_surface(geometry, face_n, tri[s], b[s]), chunks))
+        p, n_s, n_g = (np.concatenate(column) for column in zip(*lifted)) if len(lifted) > 1 else lifted[0]
         count = len(tri)
         parts.append((p, n_s, n_g, tri, b[:, 1:3].copy(), np.full(count, len(rasters), np.int32),
                       samples.texel, samples.weight))
@@ -118,7 +127,7 @@ def lift_texels(scene: Scene, samples_per_axis: int) -> tuple[TexelPoints, list[
         empty = TexelPoints(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64),
                             np.zeros((0, 2)), np.zeros(0, np.int32), np.zeros(0, np.int64), np.zeros(0, np.float32))
         return empty, rasters
-    columns = [np.concatenate(c) for c in zip(*parts)]
+    columns = [np.concatenate(c) for c in zip(*parts)] if len(parts) > 1 else parts[0]
     return TexelPoints(*columns), rasters
 
 
@@ -152,10 +161,16 @@ def footprint_texel_points(scene: Scene, target_index: int, texels: np.ndarray, 
 
 def _on_surface(geometry, face_n, tri, b):
     """Position, shading normal and geometric normal (n, 3) of barycentrics b (n, 3) on triangles tri (n,)."""
-    p = np.einsum("nk,nkj->nj", b, np.take(geometry.positions, tri, axis=0))
-    n_s = np.einsum("nk,nkj->nj", b, np.take(geometry.normals, tri, axis=0).astype(np.float64))
+    p = _blend(b, np.take(geometry.positions.reshape(-1, 9), tri, axis=0))
+    n_s = _blend(b, np.take(geometry.normals.reshape(-1, 9), tri, axis=0).astype(np.float64))
     n_g = np.take(face_n, tri, axis=0)
     return p, _normalise_or(n_s, n_g), n_g
+
+
+def _blend(b, corners):
+    """(n, 3) sum over corners k of b[:, k] x corners[:, 3k:3k+3] (corners (n, 9)): the sum einsum
+    "nk,nkj->nj" makes, in the same order (same bits), without einsum's generic loop."""
+    return b[:, 0:1] * corners[:, 0:3] + b[:, 1:2] * corners[:, 3:6] + b[:, 2:3] * corners[:, 6:9]
 
 
 def splat(values: np.ndarray, points: TexelPoints, raster: TargetRaster) -> np.ndarray:
@@ -171,7 +186,4 @@ def splat(values: np.ndarray, points: TexelPoints, raster: TargetRaster) -> np.n
 
 def _normalise_or(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
     length = norms(v, keepdims=True)
-    ok = length[:, 0] > 1e-12
-    out = fallback.copy()
-    out[ok] = v[ok] / length[ok]
-    return out
+    return np.divide(v, length, out=fallback.copy(), where=length > 1e-12)

@@ -136,3 +136,24 @@ def test_bounce_counter_holds_the_largest_allowed_max_bounces_and_settings_rejec
     assert int(pm.bounce.max()) == 255
     linked = pm.prev >= 0
     assert np.all(pm.bounce[linked] == pm.bounce[pm.prev[linked]] + 1)
+
+
+def test_records_split_over_threads_equal_one_thread():
+    """Record placement's density estimates shared between threads give each record the same zone,
+    weights and E_k, bit for bit, as one thread (walls, coverage and leave-one-out included)."""
+    scene = furnace(0.5, 1.0, subdivisions=3)
+    pm, _ = trace_photons(scene, RayCaster(scene.geometry.positions), 20_000, 8, seed=2, executor=Executor(2))
+    one, two = PhotonDensity(pm, workers=1), PhotonDensity(pm, workers=2)
+    rng = np.random.default_rng(0)
+    at = rng.choice(len(pm), 300, replace=False)
+    p_k, n_k, R_k = one.p[at], one.n[at].astype(np.float64), rng.uniform(0.1, 0.4, 300)
+    from pdic.core.constants import WALL_RAYS
+
+    sectors = (300, WALL_RAYS)
+    wall = np.where(rng.random(sectors) < 0.2, rng.uniform(0.02, 0.3, sectors), np.inf).astype(np.float32)
+    coverage = rng.uniform(0.5, 1.0, 300)
+    for extra in ({}, {"wall": wall, "coverage": coverage, "own": at}):
+        a, b = one.records(p_k, n_k, R_k, 0.5, **extra), two.records(p_k, n_k, R_k, 0.5, **extra)
+        for name in ("lengths", "photons", "w", "E_k", "used"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
+        assert a.E_k.sum() > 0
