@@ -14,10 +14,12 @@ from __future__ import annotations
 
 import numpy as np
 
-CELL_PER_ZONE = 2.0
-"""Cell side / the median zone radius. Measured on Sponza's 36k pass-2 records (zones
-0.07-1.7 m, 505k gathering hits): 2.0 builds in 0.14 s with 31 entries per record and looks
-up 0.50 us per hit; 1.0 (with the cap below: 38 entries) 0.41 s and 0.48 us; 3.0 0.07 s and 0.59 us."""
+CELL_PER_ZONE = 3.0
+"""Cell side / the median zone radius; the pairs found do not depend on it. A bake builds about ten
+grids (Equation 3 at texels and at holes, the hit grids) on one thread and queries them on all.
+Sponza 16 texels/m, 78k records (pass 2 and holes) and 1.2M points: 2.0 builds in 0.47 s with
+47 entries per record and looks up 0.78 us per point; 3.0 0.21 s, 19 entries, 0.98 us; 4.0 0.11 s,
+1.40 us. On the 36k pass-2 records alone 1.0 was slower to build (38 entries: 0.41 s) for 0.48 us."""
 MAX_ENTRIES_PER_RECORD = 4096
 """A zone wider than this many cells (a few huge R_k beside many small ones) coarsens the grid
 instead: memory stays O(records) whatever the spread of R_k."""
@@ -32,7 +34,7 @@ class ZoneGrid:
     """Cells of side ``cell`` over the zones' bounding boxes; CSR lists of records per occupied cell.
 
     p : (K, 3) float64 record positions; zone : (K,) float64 zone radii (scene units, a R_k).
-    Memory: 40 bytes per (record, cell) entry (~30 entries per record at CELL_PER_ZONE) and
+    Memory: 40 bytes per (record, cell) entry (~20 entries per record at CELL_PER_ZONE) and
     8 bytes per cell of the dense table.
     """
 
