@@ -34,19 +34,19 @@ class HitGrid:
     offset : (T,) int64 the triangle's first cell;
     E : (2, V, 3) float32 irradiance W/m^2 at the cells' centroids, on the side the face normal points
         to [0] and the other [1]; E_direct : (2, V, 3) float32 its direct part (a later grid over the
-        same cells reuses it). Memory: 48 bytes per cell; V <= HIT_GRID_MAX_CELLS.
+        same cells reuses it); centroid : (V, 3) float64 the cells' centroids (a hit's cell is found
+        per hit, its centroid read). Memory: 72 bytes per cell; V <= HIT_GRID_MAX_CELLS.
     """
 
     side: np.ndarray
     offset: np.ndarray
     E: np.ndarray
     E_direct: np.ndarray
+    centroid: np.ndarray
 
-    def lookup(self, positions: np.ndarray, triangle: np.ndarray, barycentric: np.ndarray, back: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray]:
-        """(E (h, 3) float64 of each hit's cell, the cell's centroid (h, 3)) at hits: triangle (h,) int64
-        into positions (T, 3, 3), Embree barycentric (h, 2), back (h,) bool (the ray reached the side
-        the face normal points away from)."""
+    def lookup(self, triangle: np.ndarray, barycentric: np.ndarray, back: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(E (h, 3) float64 of each hit's cell, the cell's centroid (h, 3)) at hits: triangle (h,) int64,
+        Embree barycentric (h, 2), back (h,) bool (the ray reached the side the face normal points away from)."""
         L = self.side[triangle]
         u = np.clip(barycentric[:, 0], 0.0, 1.0)
         v = np.clip(barycentric[:, 1], 0.0, 1.0)
@@ -57,7 +57,7 @@ class HitGrid:
         upper = (x - i) + (y - j) > 1.0
         cell = self.offset[triangle] + j * (2 * L - j) + 2 * i + upper
         E = np.take(self.E.reshape(-1, 3), back * self.E.shape[1] + cell, axis=0).astype(np.float64)
-        return E, _centroids(positions, triangle, i, j, upper, L)
+        return E, np.take(self.centroid, cell, axis=0)
 
 
 def _centroids(positions: np.ndarray, triangle: np.ndarray, i: np.ndarray, j: np.ndarray, upper: np.ndarray,
@@ -135,4 +135,4 @@ def build_hit_grid(scene, caster, indirect_at, R_min: float, hits: int, seed: in
         E_indirect = np.concatenate([part[side] for part in parts]) if parts else np.zeros((0, 3))
         E[side] = E_direct[side] + E_indirect
     counters["hit_grid_fallback_rays"] += sum(part[2] for part in parts)
-    return HitGrid(L, offset, E, E_direct), counters
+    return HitGrid(L, offset, E, E_direct, q), counters

@@ -102,7 +102,7 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
         E, rays = _irradiance_at_hits(scene, caster, sources, q, n_hit, rng)
         return rho * E / np.pi, rays
     # deviation: hit-grid, docs/DEVIATIONS.md: the hit's grid cell, if the hit sees its centroid.
-    E, centroid = sources.hit_grid.lookup(scene.geometry.positions, triangle, barycentric, back)
+    E, centroid = sources.hit_grid.lookup(triangle, barycentric, back)
     own = np.flatnonzero(~caster.sides_visible(q, n_hit, centroid, n_hit))
     rays = len(q)
     if len(own):

@@ -33,16 +33,16 @@ def test_each_cell_centroid_reads_its_own_cell_on_either_side():
     E = np.zeros((2, len(q), 3), np.float32)
     E[0, :, 0] = np.arange(len(q))
     E[1, :, 1] = np.arange(len(q))
-    grid = HitGrid(L, offset, E, E)
-    front, centroid = grid.lookup(positions, triangle, uv, np.zeros(len(q), bool))
-    back, _ = grid.lookup(positions, triangle, uv, np.ones(len(q), bool))
+    grid = HitGrid(L, offset, E, E, q)
+    front, centroid = grid.lookup(triangle, uv, np.zeros(len(q), bool))
+    back, _ = grid.lookup(triangle, uv, np.ones(len(q), bool))
     assert np.allclose(centroid, q)
     assert np.array_equal(front[:, 0], np.arange(len(q))) and not front[:, 1].any()
     assert np.array_equal(back[:, 1], np.arange(len(q))) and not back[:, 0].any()
     # Hits on a triangle's edges and corners (u + v = 1, u = 0, v = 0) land in one of its cells.
     edge = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [0.5, 0.5], [1.0 + 1e-9, -1e-9]])
     tri = np.zeros(len(edge), np.int64)
-    cell = grid.lookup(positions, tri, edge, np.zeros(len(edge), bool))[0][:, 0]
+    cell = grid.lookup(tri, edge, np.zeros(len(edge), bool))[0][:, 0]
     assert np.all((cell >= offset[0]) & (cell < offset[0] + L[0] ** 2))
 
 
