@@ -10,7 +10,7 @@ sample's tangent plane counts only if it sees the sample, in every lookup and in
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -60,7 +60,8 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
                                          caster=_record_visibility(caster, params))
             covered = w_fine > 0
             E[valid[fine[covered]]] = E_fine[covered]
-    stats.add(texel_points_interpolated=len(merged) + len(fine), texel_points_unfilled=filled.unfilled)
+    stats.add(texel_points_interpolated=len(merged) + len(fine), texel_points_unfilled=filled.unfilled,
+              **{f"holes_{key}": value for key, value in filled.counters.items()})
     return E, filled.cache.take(slice(len(cache), None))
 
 
@@ -96,6 +97,8 @@ class FilledLookup:
     hole_records: int
     unfilled: int
     """Points no record accepts after the hole rounds."""
+    counters: dict = field(default_factory=dict)
+    """The hole records' refinement counters (:data:`core.refinement.COUNTERS`), summed over the rounds."""
 
 
 def interpolate_filling_holes(scene, caster, density: PhotonDensity, sources: GatherSources | None,
@@ -127,7 +130,7 @@ def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | N
                            progress, with_zone=True, caster=caster, margin=margin)
 
     E, w, smallest = lookup(cache, slice(None))
-    hole_records = 0
+    hole_records, counters = 0, {}
     for round_ in range(settings.deviations.hole_rounds):  # deviation: hole-rounds, docs/DEVIATIONS.md
         holes = np.flatnonzero(w <= 0)
         if len(holes) == 0:
@@ -140,30 +143,34 @@ def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | N
             holes = holes[~gap]
             if len(holes) == 0:
                 break
-        new = _hole_records(scene, caster, density, sources, cache, points.p[holes], points.n_shading[holes],
+        new, refined = _hole_records(scene, caster, density, sources, cache, points.p[holes], points.n_shading[holes],
                             params, settings, executor, progress, round_)
         if len(new) == 0:
             break
         hole_records += len(new)
+        for key, value in refined.items():
+            counters[key] = counters.get(key, 0) + value
         cache = cache.extend(new)
         E[holes], w[holes], smallest[holes] = lookup(cache, holes)
     unfilled = np.flatnonzero(w <= 0)
     if len(unfilled) and len(cache) and settings.deviations.nearest_record_fallback:
         # deviation: nearest-record-fallback, docs/DEVIATIONS.md (counted in the stats).
         E[unfilled] = nearest_record(cache, points.p[unfilled], points.n_shading[unfilled], seeing)
-    return FilledLookup(E, w, smallest, cache, hole_records, len(unfilled))
+    return FilledLookup(E, w, smallest, cache, hole_records, len(unfilled), counters)
 
 
 def _hole_records(scene, caster, density, sources, cache, cand_p, cand_n, params, settings, executor, progress,
-                  round_: int) -> IrradianceCache:
-    """One round of section 3.4: Algorithm 1 over the uncovered samples, refined at Final quality."""
+                  round_: int) -> tuple[IrradianceCache, dict]:
+    """One round of section 3.4: Algorithm 1 over the uncovered samples, refined at Final quality;
+    and the refinement's counters."""
     new, zones, _ = cache_for_holes(density, cand_p, cand_n, params,
                                     np.random.default_rng([settings.seed, STREAM_HOLE_ORDER, round_]),
                                     existing=cache, caster=caster)
+    counters = {}
     if settings.refine and len(new):
-        new, _ = refine_records(scene, caster, sources, new, zones, settings, params, executor, progress,
-                                stream=STREAM_REFINE_HOLES + round_)
-    return new
+        new, counters = refine_records(scene, caster, sources, new, zones, settings, params, executor, progress,
+                                       stream=STREAM_REFINE_HOLES + round_)
+    return new, counters
 
 
 def nearest_record(cache: IrradianceCache, p: np.ndarray, n: np.ndarray, caster=None) -> np.ndarray:
