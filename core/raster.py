@@ -240,15 +240,24 @@ def _grid_hits(p_texel, width, height, n, map=map):
     return sample[first], tri[first], _normalise(bary[first])
 
 
+DENSE_GRID_PER_PAIR = 4
+"""Grid points per (point, triangle) pair up to which :func:`_one_per_sample` uses dense tables."""
+
+
 def _one_per_sample(sample, tri, least, grid_points: int) -> np.ndarray:
     """Indices of one pair per grid point, in increasing ``sample``: the triangle the point is most
     inside (largest ``least``), then the lowest triangle index.
 
     Only points on shared edges have several pairs (a few percent), so only they are sorted; the
-    rest are placed by their sample index (a 3-key sort of every pair cost 0.4 s per million).
+    rest are placed by their sample index (a 3-key sort of every pair cost 0.4 s per million). The
+    two tables of grid points that takes (16 bytes each) are used only while the pairs fill a
+    quarter of the grid; a map with few charts sorts every pair instead.
     """
     if len(sample) == 0:
         return np.zeros(0, np.int64)
+    if grid_points > DENSE_GRID_PER_PAIR * len(sample):
+        order = np.lexsort((tri, -least, sample))
+        return order[np.r_[True, sample[order][1:] != sample[order][:-1]]]
     count = np.bincount(sample, minlength=grid_points)
     chosen = np.full(grid_points, -1, np.int64)
     single = np.flatnonzero(count[sample] == 1)

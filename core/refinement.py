@@ -190,10 +190,10 @@ def inside_geometry(caster, real: RealHits, cells: int, real_rays: np.ndarray) -
     """(B,) bool: records whose real gathering rays (``real_rays`` (B,) cast each) mostly hit back faces.
 
     Texel validity's test (:mod:`core.validity`, BACKFACE_FRACTION) with the hundreds of rays a
-    record casts instead of a texel sample's eight: a hole record placed at a sample that passed
-    the eight-ray vote inside a wall's hollow (the occluded building: 98 of 923 hole records, E
-    where a path tracer finds none) gathered the back faces' light. Records with fewer than
-    VALIDITY_RAYS real rays (photons lent the rest) are left alone.
+    record casts instead of a texel sample's eight: hole records placed at samples that passed the
+    eight-ray vote inside a wall's hollow gathered the back faces' light where a path tracer finds
+    none (the occluded building flags 105 of its 923). Records with fewer than VALIDITY_RAYS real
+    rays (photons lent the rest) are left alone.
     """
     back = np.einsum("ij,ij->i", np.take(caster.face_normals, real.triangle, axis=0), real.direction) > 0
     back_hits = np.bincount(real.cell[back] // cells, minlength=len(real_rays))

@@ -138,4 +138,5 @@ def test_one_pair_per_sample_matches_the_sort_of_all_pairs(rng):
     least = rng.integers(0, 4, 3000) / 4.0  # many ties in ``least``
     order = np.lexsort((tri, -least, sample))
     expected = order[np.r_[True, sample[order][1:] != sample[order][:-1]]]
-    assert np.array_equal(_one_per_sample(sample, tri, least, 500), expected)
+    assert np.array_equal(_one_per_sample(sample, tri, least, 500), expected)  # dense tables
+    assert np.array_equal(_one_per_sample(sample, tri, least, 10 ** 6), expected)  # a sparse grid: one sort
