@@ -118,7 +118,7 @@ def refine_records(scene, caster, sources: GatherSources, cache: IrradianceCache
     def run(index, s):
         rng = np.random.default_rng([settings.seed, stream, index])
         return refine_batch(scene, serial, sources, cache.p[s], cache.n[s], *zones.batch(s), H,
-                            settings.reuse_photon_paths, rng, r_floor)
+                            settings.reuse_photon_paths, rng, r_floor, cache.hole[s])
 
     batches = slices(K, RECORD_BATCH)
     results = executor.map_chunks(run, batches, progress)
@@ -147,8 +147,11 @@ def refine_records(scene, caster, sources: GatherSources, cache: IrradianceCache
 
 def refine_batch(scene, caster, sources: GatherSources, p_k: np.ndarray, n_k: np.ndarray, zone_lengths: np.ndarray,
                  zone_photons: np.ndarray, H: Hemisphere, reuse: bool, rng: np.random.Generator,
-                 r_floor: float) -> dict:
-    """Figure 4 for B records: probe, virtual rays, real rays for empty cells, then E_k and gradients."""
+                 r_floor: float, hole: np.ndarray | None = None) -> dict:
+    """Figure 4 for B records: probe, virtual rays, real rays for empty cells, then E_k and gradients.
+
+    hole : (B,) bool, the hole records (placed at texel samples; only they can be found inside geometry).
+    """
     B = len(p_k)
     t1, t2, n = local_frames(n_k)
     frames = (p_k, t1, t2, n)
@@ -168,9 +171,9 @@ def refine_batch(scene, caster, sources: GatherSources, p_k: np.ndarray, n_k: np
     shadow_rays = shade_real(scene, caster, sources, real, sums, rng)
     E, grad_r, grad_t, R = sums.irradiance_and_gradients(t1, t2, n, r_floor)
     inside = np.zeros(B, bool)
-    if sources.deviations.record_validity:  # deviation: record-validity, docs/DEVIATIONS.md
+    if sources.deviations.record_validity and hole is not None and hole.any():  # deviation: record-validity
         real_rays = np.bincount(empty // H.cells, minlength=B) + probe_rays // max(B, 1)
-        inside = inside_geometry(caster, real, H.cells, real_rays)
+        inside = inside_geometry(caster, real, H.cells, real_rays) & hole
         E[inside], grad_r[inside], grad_t[inside] = 0.0, 0.0, 0.0
     return {
         "E": E, "grad_r": grad_r, "grad_t": grad_t, "R": R,
@@ -192,8 +195,10 @@ def inside_geometry(caster, real: RealHits, cells: int, real_rays: np.ndarray) -
     Texel validity's test (:mod:`core.validity`, BACKFACE_FRACTION) with the hundreds of rays a
     record casts instead of a texel sample's eight: hole records placed at samples that passed the
     eight-ray vote inside a wall's hollow gathered the back faces' light where a path tracer finds
-    none (the occluded building flags 105 of its 923). Records with fewer than VALIDITY_RAYS real
-    rays (photons lent the rest) are left alone.
+    none (the occluded building flags 105 of its 923). Only hole records are asked: a pass-2 record
+    stands where a photon arrived, which proves light reaches it (a lamp inside a box whose normals
+    face out lights the box's inside). Records with fewer than VALIDITY_RAYS real rays (photons lent
+    the rest) are left alone.
     """
     back = np.einsum("ij,ij->i", np.take(caster.face_normals, real.triangle, axis=0), real.direction) > 0
     back_hits = np.bincount(real.cell[back] // cells, minlength=len(real_rays))
