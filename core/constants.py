@@ -101,6 +101,8 @@ COVERAGE_FLOOR = 0.05
 DENSITY_RECEIVERS = 4
 """Density control: a discarded photon's power is shared among up to this many nearest kept photons
 of its surface ([SW00] spreads it over the neighbours; 4 keeps the added noise local)."""
+ZONE_PHOTONS = 64
+"""Preview: fewest photons a record's zone holds (deviation: zone-photon-floor)."""
 R_OVERSAMPLE = 3
 """Neighbours fetched per wanted indirect photon when estimating R_k."""
 

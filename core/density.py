@@ -79,6 +79,26 @@ class PhotonDensity:
         np.divide(kept, inverse, out=R, where=kept > 0)
         return R
 
+    def photon_reach(self, p_k: np.ndarray, n_k: np.ndarray, count: int) -> np.ndarray:
+        """(B,) float64 distance from each p_k (B, 3) to its ``count``-th nearest indirect photon on
+        the surface it faces (n . n_k >= SAME_SURFACE_COS, as E_k counts them); where fewer are among
+        the R_OVERSAMPLE x ``count`` nearest photons, the farthest of those (a lower bound)."""
+        B = len(p_k)
+        if not self.has_indirect or B == 0 or count <= 0:
+            return np.zeros(B)
+        k = min(R_OVERSAMPLE * count, len(self.p))
+        dist, idx = self.tree.query(p_k, k=k, workers=self.workers)
+        self.queries += B
+        dist, idx = np.asarray(dist).reshape(B, k), np.asarray(idx).reshape(B, k)
+        valid = idx < len(self.p)
+        safe = np.where(valid, idx, 0)
+        same = np.einsum("bkj,bj->bk", self.n[safe].astype(np.float64), n_k) >= SAME_SURFACE_COS
+        counted = np.cumsum(valid & self.is_indirect[safe] & same, axis=1)
+        enough = counted[:, -1] >= count
+        at = np.argmax(counted >= count, axis=1)
+        farthest = np.max(np.where(valid, dist, 0.0), axis=1)
+        return np.where(enough, dist[np.arange(B), at], farthest)
+
     def record(self, p_k: np.ndarray, n_k: np.ndarray, R_k: float, a: float, wall: np.ndarray | None = None,
                coverage: float | None = None, caster=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
         """:meth:`records` for one record: (zone (z,) int64, w (z,), E_k (3,), used)."""

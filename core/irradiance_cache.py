@@ -142,6 +142,9 @@ class CacheParameters:
     record_visibility: bool = True
     """Records and hole records' photons off a point's tangent plane count only if they see it
     (deviation: record-visibility)."""
+    zone_photons: int = 0
+    """R_k >= the distance to the zone_photons-th nearest photon / a, so E_k's zone holds that many
+    (deviation: zone-photon-floor, Preview); 0: no floor."""
 
 
 @dataclass
@@ -279,6 +282,8 @@ def _radii(density: PhotonDensity, p: np.ndarray, n: np.ndarray, params: CachePa
            clamp: "_NeighbourClamp") -> np.ndarray:
     """(B,) R_k at B candidates: Figure 3, kept in [R_min, R_max], clamped against the records so far."""
     R_k = density.harmonic_mean_distances(p, n, params.r_nearest, params.R_max)
+    if params.zone_photons:  # deviation: zone-photon-floor, docs/DEVIATIONS.md
+        R_k = np.maximum(R_k, density.photon_reach(p, n, params.zone_photons) / params.a)
     return clamp.clamp(p, np.clip(R_k, params.R_min, params.R_max))
 
 

@@ -27,7 +27,7 @@ import numpy as np
 
 from . import texels as texel_stage
 from .bake_cache import BakeCache, NoBakeCache, target_key, transport_key
-from .constants import R_MIN_FLOOR, STREAM_DIRECT
+from .constants import R_MIN_FLOOR, STREAM_DIRECT, ZONE_PHOTONS
 from .density import PhotonDensity
 from .density_control import controlled_pass
 from .direct import shade_direct
@@ -233,7 +233,8 @@ def cache_parameters(scene: Scene, rasters, settings: BakeSettings) -> CachePara
     return CacheParameters(a=settings.a, r_nearest=settings.r_nearest, R_min=max(R_min, R_MIN_FLOOR * scene.extent),
                            R_max=R_max, kernel_coverage=deviations.surface_coverage and not settings.refine,
                            wall_sectors=deviations.wall_sectors, neighbour_clamp=deviations.neighbour_clamp,
-                           record_visibility=deviations.record_visibility, leave_one_out=deviations.leave_one_out)
+                           record_visibility=deviations.record_visibility, leave_one_out=deviations.leave_one_out,
+                           zone_photons=ZONE_PHOTONS if deviations.zone_photon_floor and not settings.refine else 0)
 
 
 # --------------------------------------------------------------------------- direct light

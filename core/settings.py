@@ -24,6 +24,8 @@ class Deviations:
     """Pass 3: a record whose real gathering rays mostly hit back faces is inside geometry: E_k = 0."""
     wall_sectors: bool = True
     """Records find the walls in their tangent plane; light is not interpolated past them."""
+    zone_photon_floor: bool = True
+    """Preview: a record's zone holds at least ZONE_PHOTONS photons (R_k floored), however small R_min."""
     surface_coverage: bool = True
     """Preview: E_k's kernel is normalised over the surface inside its disc (probe rays)."""
     leave_one_out: bool = True

@@ -157,3 +157,31 @@ def test_records_split_over_threads_equal_one_thread():
         for name in ("lengths", "photons", "w", "E_k", "used"):
             assert np.array_equal(getattr(a, name), getattr(b, name)), name
         assert a.E_k.sum() > 0
+
+
+def test_photon_reach_is_the_distance_to_the_count_th_photon_on_the_surface_faced():
+    """The zone-photon floor's distance: the count-th nearest indirect photon whose normal agrees,
+    checked against a brute-force sort (where the oversampled query holds fewer, the farthest
+    photon it holds: a lower bound); photons on the other side of a surface are not counted."""
+    from pdic.core.constants import R_OVERSAMPLE, SAME_SURFACE_COS
+
+    scene = furnace(0.5, 1.0, subdivisions=3)
+    pm, _ = trace_photons(scene, RayCaster(scene.geometry.positions), 20_000, 8, seed=3, executor=Executor(1))
+    density = PhotonDensity(pm)
+    at = np.random.default_rng(1).choice(len(pm), 50, replace=False)
+    p_k, n_k = density.p[at], density.n[at].astype(np.float64)
+    reach = density.photon_reach(p_k, n_k, 16)
+    exact = 0
+    for k in range(len(at)):
+        d = np.linalg.norm(density.p - p_k[k], axis=1)
+        facing = np.einsum("ij,j->i", density.n.astype(np.float64), n_k[k])  # as photon_reach sums it
+        ok = density.is_indirect & (facing >= SAME_SURFACE_COS)
+        nearest = np.argsort(d)[:R_OVERSAMPLE * 16]
+        if ok[nearest].sum() >= 16:
+            assert reach[k] == pytest.approx(np.sort(d[ok])[15], rel=1e-12)
+            exact += 1
+        else:
+            assert reach[k] == pytest.approx(d[nearest].max(), rel=1e-12) and reach[k] < np.sort(d[ok])[15]
+    assert exact > 40
+    flipped = density.photon_reach(p_k, -n_k, 16)  # the sphere's outside: no photon faces it
+    assert np.all(flipped >= reach)
