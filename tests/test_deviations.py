@@ -103,3 +103,14 @@ def test_path_visibility_casts_one_occlusion_ray_per_virtual_ray_and_none_when_o
     _, on = _bake(FINAL, path_visibility=True)
     assert 0 < on["refine_path_visibility_rays"] <= on["refine_rays_cast"]
     assert on["refine_virtual_rays"] <= on["refine_path_visibility_rays"]
+
+
+def test_the_zone_photon_floor_widens_preview_zones_and_leaves_final_alone(default):
+    preview = preset("PREVIEW", photons=4000, max_bounces=3, threads=1)
+    on, _ = _bake(preview)
+    off, _ = _bake(preview, zone_photon_floor=False)
+    assert len(on.cache) < len(off.cache) and on.cache.R.mean() > off.cache.R.mean()
+    assert on.cache.photons_used.min() > off.cache.photons_used.min()
+    final_off, _ = _bake(FINAL, zone_photon_floor=False)
+    for name in final_off.lightmaps:  # Final's records gather their own E_k: R_min stays their floor
+        np.testing.assert_array_equal(final_off.lightmaps[name], default[0].lightmaps[name])
