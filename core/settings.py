@@ -21,7 +21,7 @@ class Deviations:
     texel_validity: bool = True
     """Texel samples inside closed geometry get no indirect light and no hole record."""
     record_validity: bool = True
-    """Pass 3: a record whose real gathering rays mostly hit back faces is inside geometry: E_k = 0."""
+    """Final: a hole record whose real gathering rays mostly hit back faces is inside geometry: E_k = 0."""
     wall_sectors: bool = True
     """Records find the walls in their tangent plane; light is not interpolated past them."""
     zone_photon_floor: bool = True
