@@ -171,7 +171,8 @@ def refine_batch(scene, caster, sources: GatherSources, p_k: np.ndarray, n_k: np
     shadow_rays = shade_real(scene, caster, sources, real, sums, rng)
     E, grad_r, grad_t, R = sums.irradiance_and_gradients(t1, t2, n, r_floor)
     inside = np.zeros(B, bool)
-    if sources.deviations.record_validity and hole is not None and hole.any():  # deviation: record-validity
+    # deviation: record-validity, docs/DEVIATIONS.md
+    if sources.deviations.record_validity and hole is not None and hole.any():
         real_rays = np.bincount(empty // H.cells, minlength=B) + probe_rays // max(B, 1)
         inside = inside_geometry(caster, real, H.cells, real_rays) & hole
         E[inside], grad_r[inside], grad_t[inside] = 0.0, 0.0, 0.0

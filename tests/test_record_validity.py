@@ -1,5 +1,5 @@
-"""Record validity (deviation: record-validity): a record whose gathering rays mostly hit back faces
-is inside geometry, by texel validity's rule with a record's many rays."""
+"""Record validity (deviation: record-validity): a hole record whose gathering rays mostly hit back
+faces is inside geometry, by texel validity's rule with a record's many rays."""
 from __future__ import annotations
 
 import numpy as np
