@@ -15,6 +15,7 @@ from scipy.spatial import cKDTree
 
 from .constants import (COVERAGE_DEPTH, COVERAGE_LIFT, R_K_DISTANCE_FLOOR, R_K_SAME_SIDE_COS, R_OVERSAMPLE,
                         SAME_SURFACE_COS, WALL_MASS_FLOOR)
+from .executor import slices
 from .photons import PhotonMap
 from .record_walls import beyond_wall
 from .ward import accepted_from, weight_from
@@ -58,12 +59,7 @@ class PhotonDensity:
         R = np.full(B, float(R_max))
         if not self.has_indirect or B == 0:
             return R
-        k = min(R_OVERSAMPLE * count, len(self.p))
-        _, idx = self.tree.query(p_k, k=k, workers=self.workers)
-        self.queries += B
-        idx = np.asarray(idx).reshape(B, k)
-        valid = idx < len(self.p)
-        idx = np.where(valid, idx, 0)
+        _, idx, valid = self._oversampled_neighbours(p_k, count)
         indirect = valid & self.is_indirect[idx]
         indirect &= np.cumsum(indirect, axis=1) <= count  # the ``count`` nearest indirect ones
         rows, cols = np.nonzero(indirect)
@@ -86,18 +82,24 @@ class PhotonDensity:
         B = len(p_k)
         if not self.has_indirect or B == 0 or count <= 0:
             return np.zeros(B)
+        dist, idx, valid = self._oversampled_neighbours(p_k, count)
+        same = np.einsum("bkj,bj->bk", self.n[idx].astype(np.float64), n_k) >= SAME_SURFACE_COS
+        counted = np.cumsum(valid & self.is_indirect[idx] & same, axis=1)
+        enough = counted[:, -1] >= count
+        at = np.argmax(counted >= count, axis=1)
+        farthest = np.max(np.where(valid, dist, 0.0), axis=1)
+        return np.where(enough, dist[np.arange(B), at], farthest)
+
+    def _oversampled_neighbours(self, p_k: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(distances, photons, valid), each (B, k): the k = R_OVERSAMPLE x ``count`` nearest photons of
+        each p_k (B, 3), nearest first; a missing neighbour (fewer photons than k) is photon 0, not valid."""
+        B = len(p_k)
         k = min(R_OVERSAMPLE * count, len(self.p))
         dist, idx = self.tree.query(p_k, k=k, workers=self.workers)
         self.queries += B
         dist, idx = np.asarray(dist).reshape(B, k), np.asarray(idx).reshape(B, k)
         valid = idx < len(self.p)
-        safe = np.where(valid, idx, 0)
-        same = np.einsum("bkj,bj->bk", self.n[safe].astype(np.float64), n_k) >= SAME_SURFACE_COS
-        counted = np.cumsum(valid & self.is_indirect[safe] & same, axis=1)
-        enough = counted[:, -1] >= count
-        at = np.argmax(counted >= count, axis=1)
-        farthest = np.max(np.where(valid, dist, 0.0), axis=1)
-        return np.where(enough, dist[np.arange(B), at], farthest)
+        return dist, np.where(valid, idx, 0), valid
 
     def record(self, p_k: np.ndarray, n_k: np.ndarray, R_k: float, a: float, wall: np.ndarray | None = None,
                coverage: float | None = None, caster=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
@@ -135,13 +137,12 @@ class PhotonDensity:
             return self._records(p_k, n_k, R_k, a, wall, coverage, caster, own, self.workers)
         # Record placement runs on the calling thread, block after block: its numpy work over a
         # block's zone pairs is split between the threads (each record's answer is the same).
-        parts = [slice(s, min(s + -(-B // self.workers), B)) for s in range(0, B, -(-B // self.workers))]
+        parts = slices(B, -(-B // self.workers))
         part = lambda x, s: None if x is None else x[s]  # noqa: E731
         with ThreadPoolExecutor(len(parts)) as pool:
-            found = list(pool.map(lambda s: self._records(p_k[s], n_k[s], R_k[s], a, part(wall, s),
-                                                          part(coverage, s), caster, part(own, s), 1), parts))
-        return ZoneEstimates(*(np.concatenate(column) for column in zip(*(
-            (z.lengths, z.photons, z.w, z.E_k, z.used) for z in found))))
+            return ZoneEstimates.concatenate(list(pool.map(
+                lambda s: self._records(p_k[s], n_k[s], R_k[s], a, part(wall, s), part(coverage, s), caster,
+                                        part(own, s), 1), parts)))
 
     def _records(self, p_k, n_k, R_k, a, wall, coverage, caster, own, workers: int) -> "ZoneEstimates":
         """:meth:`records` over one batch of records, its kd-tree query on ``workers`` threads."""
@@ -206,6 +207,12 @@ class ZoneEstimates:
     w: np.ndarray
     E_k: np.ndarray
     used: np.ndarray
+
+    @staticmethod
+    def concatenate(parts: list["ZoneEstimates"]) -> "ZoneEstimates":
+        """The estimates of consecutive batches of records as one."""
+        return ZoneEstimates(*(np.concatenate([getattr(part, f) for part in parts]) for f in
+                               ("lengths", "photons", "w", "E_k", "used")))
 
 
 def ball_pairs(tree: cKDTree, points: np.ndarray, radius: np.ndarray, workers: int = 1

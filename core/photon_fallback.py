@@ -26,27 +26,26 @@ class NearestPhotons:
     def __init__(self, density: PhotonDensity, q: np.ndarray):
         self.density, self.q = density, q
         self.k = min(HOLE_NEIGHBOURS, len(density.p))
-        self._first = self._near = None  # made on the first question: most batches of hits have no hole
+        self._tables = {}  # k -> (len(q), k) answers, -1 until asked: most batches of hits have no hole
 
     def nearest(self, rows: np.ndarray) -> np.ndarray:
         """(r,) int64 the nearest photon of each point ``rows`` (r,) indexes."""
-        if self._first is None:
-            self._first = np.full(len(self.q), -1, np.int64)
-        ask = np.unique(rows[self._first[rows] < 0])
-        if len(ask):
-            _, nearest = self.density.tree.query(self.q[ask], k=1)
-            self._first[ask] = np.asarray(nearest, np.int64).reshape(len(ask))
-        return self._first[rows]
+        return self._answers(rows, 1)[:, 0]
 
     def k_nearest(self, rows: np.ndarray) -> np.ndarray:
         """(r, k) int64 the k nearest photons of each point ``rows`` indexes, nearest first."""
-        if self._near is None:
-            self._near = np.full((len(self.q), self.k), -1, np.int64)
-        ask = np.unique(rows[self._near[rows, 0] < 0])
+        return self._answers(rows, self.k)
+
+    def _answers(self, rows: np.ndarray, k: int) -> np.ndarray:
+        """(r, k) the k nearest photons of points ``rows``, querying the tree for those not asked yet."""
+        table = self._tables.get(k)
+        if table is None:
+            table = self._tables[k] = np.full((len(self.q), k), -1, np.int64)
+        ask = np.unique(rows[table[rows, 0] < 0])
         if len(ask):
-            _, near = self.density.tree.query(self.q[ask], k=self.k)
-            self._near[ask] = np.asarray(near, np.int64).reshape(len(ask), self.k)
-        return self._near[rows]
+            _, found = self.density.tree.query(self.q[ask], k=k)
+            table[ask] = np.asarray(found, np.int64).reshape(len(ask), k)
+        return table[rows]
 
 
 def nearest_photon_irradiance(caster, density: PhotonDensity, lighting: PhotonLighting, q: np.ndarray,
