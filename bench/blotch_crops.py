@@ -3,9 +3,9 @@
     .venv/bin/python bench/blotch_crops.py [--out bench/plots/blotch_crops_cornell.png]
 
 Rows: the floor and the back wall. Columns: the converged 64-bounce Cycles pair's mean (64^2,
-2 x 2048 spp), PDIC Final at the defaults, PDIC Final with the path-visibility and
-virtual-cell-minimum deviations on (docs/DEVIATIONS.md), and both PDIC maps' 8x8-block relative
-difference to the reference (blue darker, red brighter, +-20 %). Bench-only: matplotlib.
+2 x 2048 spp), PDIC Final with one gather per record (the adaptive-gathering deviation off: the
+blotches before it, docs/DEVIATIONS.md), PDIC Final at the defaults, and both PDIC maps' 8x8-block
+relative difference to the reference (blue darker, red brighter, +-20 %). Bench-only: matplotlib.
 """
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ from pdic.pdic_addon.extract import extract_scene  # noqa: E402
 
 RES = 256
 OBJECTS = ("Floor", "BackWall")
-VARIANTS = (("defaults", ""), ("path-visibility + cell minimum", "path_visibility=1,virtual_cell_minimum=1"))
+VARIANTS = (("one gather per record", "adaptive_gathering=0"), ("defaults", ""))
 
 
 def main(argv=None):

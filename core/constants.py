@@ -19,7 +19,8 @@ STREAM_RECORD_ORDER = 2
 STREAM_HOLE_ORDER = 3
 """Section 3.4: the order hole candidates are walked in, ``[seed, 3, round]``."""
 STREAM_REFINE = 4
-"""Pass 3: refinement of pass 2's records (gathering rays, thinning), ``[seed, 4, batch]``."""
+"""Pass 3: refinement of pass 2's records (gathering rays, thinning), ``[seed, 4, batch]``; a later
+gather of noisy records ``[seed, 4, batch, round]`` (deviation: adaptive-gathering)."""
 STREAM_DIRECT = 10
 """Direct light at texel samples, ``[seed, 10, target stream, chunk]``."""
 STREAM_PHOTON_DIRECT = 11
@@ -107,6 +108,14 @@ R_OVERSAMPLE = 3
 """Neighbours fetched per wanted indirect photon when estimating R_k."""
 
 # --------------------------------------------------------------------------- pass 3 gathering
+GATHER_ERROR = 0.05
+"""Pass 3: a record gathers again while the standard error of its E_k exceeds this fraction of E_k
+(deviation: adaptive-gathering)."""
+GATHER_ROUNDS = 4
+"""Pass 3: most gathers a record averages (deviation: adaptive-gathering)."""
+GATHER_DARK = 0.1
+"""Pass 3: records darker than this fraction of the records' mean E_k count their standard error
+against that floor: a near-black record's relative noise is not worth extra rays."""
 PROBE_RAYS = 16
 """Real rays per record cast before reuse, stratified over the hemisphere (deviation: probe-rays)."""
 VIRTUAL_RADIUS = 0.5

@@ -84,6 +84,17 @@ class CellSums:
         """Flat indices of the cells no ray reached yet."""
         return np.flatnonzero(self.count == 0)
 
+    def standard_error(self) -> np.ndarray:
+        """(B,) standard error of E_k's channel mean, from the cells' pairs of phi neighbours.
+
+        Each pair is taken as two samples of one stratum of twice the size, so the estimate also
+        counts how the radiance varies between the two cells: it errs on the high side.
+        """
+        B, M, N = self.B, self.H.rows, self.H.columns
+        L = (self.L_sum / np.maximum(self.count, 1)[:, None]).mean(axis=1).reshape(B, M, N)
+        d = L[:, :, 0:N - 1:2] - L[:, :, 1::2]
+        return self.H.cell_weight * np.sqrt(np.einsum("bjk,bjk->b", d, d))
+
     def irradiance_and_gradients(self, t1, t2, n, r_floor: float) -> tuple:
         """(E (B, 3) >= 0, grad_r, grad_t (B, 3, 3) world, R (B,) harmonic mean hit distance)."""
         B, C = self.B, self.H.cells

@@ -159,7 +159,14 @@ class Zones:
 
     def batch(self, s: slice) -> tuple[np.ndarray, np.ndarray]:
         """(lengths (b,), photons (sum,) int64) of records s.start..s.stop-1, in record order."""
-        chunk = self.parts[s]
+        return self._lengths_and_photons(self.parts[s])
+
+    def subset(self, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(lengths (b,), photons (sum,) int64) of the records ``index``, in that order."""
+        return self._lengths_and_photons([self.parts[i] for i in index])
+
+    @staticmethod
+    def _lengths_and_photons(chunk: list) -> tuple[np.ndarray, np.ndarray]:
         lengths = np.array([len(z) for z in chunk], np.int64)
         photons = np.concatenate(chunk).astype(np.int64) if chunk else np.zeros(0, np.int64)
         return lengths, photons

@@ -17,11 +17,13 @@ the cache, mapped on the executor.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numpy as np
 
-from .constants import (BACKFACE_FRACTION, CELL_DISTANCE_FLOOR, PHOTON_DIRECT_SAMPLES, PROBE_RAYS, STREAM_HIT_GRID,
-                        STREAM_PHOTON_DIRECT, STREAM_REFINE, VALIDITY_RAYS, VIRTUAL_RADIUS)
+from .constants import (BACKFACE_FRACTION, CELL_DISTANCE_FLOOR, GATHER_DARK, GATHER_ERROR, GATHER_ROUNDS,
+                        PHOTON_DIRECT_SAMPLES, PROBE_RAYS, STREAM_HIT_GRID, STREAM_PHOTON_DIRECT, STREAM_REFINE,
+                        VALIDITY_RAYS, VIRTUAL_RADIUS)
 from .density import PhotonDensity
 from .direct import shade_direct
 from .executor import Executor, Progress, slices
@@ -40,7 +42,8 @@ RECORD_BATCH = 256
 """Records refined per chunk: ~75k cells, a few tenths of a second of work."""
 COUNTERS = ("refine_rays_cast", "refine_probe_rays", "refine_visibility_rays", "refine_path_visibility_rays",
             "refine_shadow_rays",
-            "refine_virtual_rays", "refine_cells_virtual", "refine_cells", "refine_records_inside")
+            "refine_virtual_rays", "refine_cells_virtual", "refine_cells", "refine_records_inside",
+            "refine_extra_gathers")
 
 
 @dataclass(frozen=True)
@@ -115,20 +118,37 @@ def refine_records(scene, caster, sources: GatherSources, cache: IrradianceCache
     serial = caster.serial()
     r_floor = CELL_DISTANCE_FLOOR * params.a * params.R_min
 
-    def run(index, s):
-        rng = np.random.default_rng([settings.seed, stream, index])
-        return refine_batch(scene, serial, sources, cache.p[s], cache.n[s], *zones.batch(s), H,
-                            settings.reuse_photon_paths, rng, r_floor, cache.hole[s])
+    def run(index, s, round=0, records=None):
+        """Batch ``index``: records s, or with ``records`` (a later round) records[s]."""
+        rng = np.random.default_rng([settings.seed, stream, index] + ([round] if round else []))
+        rows = s if records is None else records[s]
+        lengths, photons = zones.batch(s) if records is None else zones.subset(rows)
+        # A later round casts real rays into every cell: the photons would lend it the same virtual rays.
+        return refine_batch(scene, serial, sources, cache.p[rows], cache.n[rows], lengths, photons, H,
+                            settings.reuse_photon_paths and not round, rng, r_floor, cache.hole[rows])
 
     batches = slices(K, RECORD_BATCH)
     results = executor.map_chunks(run, batches, progress)
-    refined = cache.take(slice(None))
+    gathers = Gathers(K)
     counters = {key: 0 for key in COUNTERS}
     for s, r in zip(batches, results):
-        refined.E[s], refined.grad_r[s], refined.grad_t[s] = r["E"], r["grad_r"], r["grad_t"]
-        refined.R[s] = np.clip(r["R"], params.R_min, params.R_max)
-        for key in counters:
-            counters[key] += r[key]
+        gathers.add(s, r, counters)
+    stage = progress.stage if progress is not None else ""
+    # deviation: adaptive-gathering, docs/DEVIATIONS.md
+    for round in range(1, GATHER_ROUNDS if settings.deviations.adaptive_gathering else 1):
+        noisy = gathers.noisy()
+        if len(noisy) == 0:
+            break
+        if progress is not None:
+            progress.begin(f"{stage}: {len(noisy):,} noisy records gather again")
+        batches = slices(len(noisy), RECORD_BATCH)
+        results = executor.map_chunks(partial(run, round=round, records=noisy), batches, progress)
+        for s, r in zip(batches, results):
+            gathers.add(noisy[s], r, counters)
+        counters["refine_extra_gathers"] += len(noisy)
+    refined = cache.take(slice(None))
+    refined.E, refined.grad_r, refined.grad_t, R = gathers.means()
+    refined.R = np.clip(R, params.R_min, params.R_max)
     refined.refined[:] = True
     if params.neighbour_clamp:  # deviation: neighbour-clamp, docs/DEVIATIONS.md
         refined.R = neighbour_clamp(refined.p, refined.R, executor.workers)
@@ -143,6 +163,50 @@ def refine_records(scene, caster, sources: GatherSources, cache: IrradianceCache
                                                          params.a * refined.R)
     caster.rays_cast += counters["refine_rays_cast"] + counters["refine_shadow_rays"]
     return refined, counters
+
+
+class Gathers:
+    """Sums over each record's gathers: one each, and up to GATHER_ROUNDS for the noisy ones
+    (deviation: adaptive-gathering). ``add`` takes a :func:`refine_batch` result for records ``index``.
+
+    The first gather reuses photon paths; the later ones cast a real ray into every cell, so their
+    average also shrinks the virtual rays' photon noise, which a repeated reuse would read again.
+    """
+
+    def __init__(self, K: int):
+        self.n = np.zeros(K)
+        self.E, self.grad_r, self.grad_t = np.zeros((K, 3)), np.zeros((K, 3, 3)), np.zeros((K, 3, 3))
+        self.inv_R, self.variance, self.R_first = np.zeros(K), np.zeros(K), np.zeros(K)
+        self.inside = np.zeros(K, bool)
+
+    def add(self, index, r: dict, counters: dict):
+        first = self.n[index] == 0
+        self.R_first[index] = np.where(first, r["R"], self.R_first[index])
+        self.n[index] += 1
+        self.E[index] += r["E"]
+        self.grad_r[index] += r["grad_r"]
+        self.grad_t[index] += r["grad_t"]
+        with np.errstate(divide="ignore"):
+            self.inv_R[index] += 1.0 / r["R"]
+        self.variance[index] += r["standard_error"] ** 2
+        self.inside[index] |= r["inside"]
+        for key in COUNTERS:
+            counters[key] += r.get(key, 0)
+
+    def noisy(self) -> np.ndarray:
+        """Records whose mean E_k's standard error exceeds GATHER_ERROR of max(E_k, GATHER_DARK mean E)."""
+        E = self.E.mean(axis=1) / self.n
+        floor = GATHER_DARK * E.mean() if len(E) else 0.0
+        error = np.sqrt(self.variance) / self.n
+        return np.flatnonzero(error > GATHER_ERROR * np.maximum(E, floor))
+
+    def means(self) -> tuple:
+        """(E, grad_r, grad_t, R): the gathers' means, R the harmonic mean of their R; a record any
+        gather found inside geometry (deviation: record-validity) keeps E = 0 and no gradients."""
+        with np.errstate(divide="ignore"):
+            R = np.where(self.n == 1, self.R_first, self.n / self.inv_R)
+        lit = np.where(self.inside, 0.0, 1.0 / self.n)
+        return self.E * lit[:, None], self.grad_r * lit[:, None, None], self.grad_t * lit[:, None, None], R
 
 
 def refine_batch(scene, caster, sources: GatherSources, p_k: np.ndarray, n_k: np.ndarray, zone_lengths: np.ndarray,
@@ -178,6 +242,7 @@ def refine_batch(scene, caster, sources: GatherSources, p_k: np.ndarray, n_k: np
         E[inside], grad_r[inside], grad_t[inside] = 0.0, 0.0, 0.0
     return {
         "E": E, "grad_r": grad_r, "grad_t": grad_t, "R": R,
+        "standard_error": np.where(inside, 0.0, sums.standard_error()), "inside": inside,
         "refine_rays_cast": len(empty) + probe_rays + visibility_rays + path_rays,
         "refine_probe_rays": probe_rays,
         "refine_visibility_rays": visibility_rays,

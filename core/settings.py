@@ -45,6 +45,9 @@ class Deviations:
     virtual_cell_minimum: bool = False
     """Pass 3: a cell fewer than VIRTUAL_MIN_PER_CELL virtual rays reached casts a real ray instead (off by
     default: it exposes pass 2's dark hit shading on Sponza, docs/DEVIATIONS.md)."""
+    adaptive_gathering: bool = True
+    """Pass 3: a record whose E_k's standard error (from its cells) exceeds GATHER_ERROR gathers again,
+    up to GATHER_ROUNDS times, and averages (docs/DEVIATIONS.md)."""
     harmonic_cell_radiance: bool = True
     """Pass 3: a cell's virtual rays are averaged as the flux-weighted harmonic mean."""
     hit_grid: bool = True

@@ -38,6 +38,7 @@ def default():
     ("probe_rays", "refine_probe_rays"),
     ("zone_visibility", "refine_visibility_rays"),
     ("wall_sectors", "refine_wall_rays"),
+    ("adaptive_gathering", "refine_extra_gathers"),
 ])
 def test_a_deviation_switched_off_casts_none_of_its_rays(default, switch, counter):
     assert default[1][counter] > 0

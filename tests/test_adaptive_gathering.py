@@ -1,0 +1,85 @@
+"""Adaptive gathering (deviation: adaptive-gathering): a record whose E_k is noisy by its own cells
+gathers again with real rays and averages; one gather is passed through unchanged."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from pdic.core.constants import GATHER_DARK, GATHER_ERROR
+from pdic.core.pipeline import bake
+from pdic.core.refinement import COUNTERS, Gathers
+from pdic.core.scene import PointLight
+from pdic.core.settings import Deviations, preset
+
+from scenes import box_faces, quad_scene
+
+
+def _gather(E, R, error, inside=None):
+    """A refine_batch-like result for len(E) records with gradients E x 1 and counters of 1."""
+    E = np.asarray(E, float)
+    return {"E": E, "grad_r": E[:, :, None] * np.ones(3), "grad_t": -E[:, :, None] * np.ones(3),
+            "R": np.asarray(R, float), "standard_error": np.asarray(error, float),
+            "inside": np.zeros(len(E), bool) if inside is None else np.asarray(inside),
+            **{key: 1 for key in COUNTERS if key != "refine_extra_gathers"}}
+
+
+def test_one_gather_is_passed_through_bit_for_bit():
+    rng = np.random.default_rng(1)
+    E, R = rng.random((5, 3)), rng.random(5) + 0.1
+    gathers, counters = Gathers(5), dict.fromkeys(COUNTERS, 0)
+    gathers.add(slice(0, 5), _gather(E, R, np.zeros(5)), counters)
+    mean_E, grad_r, grad_t, mean_R = gathers.means()
+    assert np.array_equal(mean_E, E) and np.array_equal(mean_R, R)
+    assert np.array_equal(grad_r, E[:, :, None] * np.ones(3)) and np.array_equal(grad_t, -grad_r)
+    assert counters["refine_rays_cast"] == 1
+
+
+def test_later_gathers_average_e_and_gradients_and_take_the_harmonic_mean_of_r():
+    gathers, counters = Gathers(3), dict.fromkeys(COUNTERS, 0)
+    gathers.add(slice(0, 3), _gather(np.full((3, 3), 1.0), [1.0, 2.0, np.inf], np.zeros(3)), counters)
+    gathers.add(np.array([0, 2]), _gather(np.full((2, 3), 3.0), [3.0, np.inf], np.zeros(2)), counters)
+    E, grad_r, _, R = gathers.means()
+    np.testing.assert_allclose(E[:, 0], [2.0, 1.0, 2.0])
+    np.testing.assert_allclose(grad_r[:, 0, 0], [2.0, 1.0, 2.0])
+    np.testing.assert_allclose(R, [1.5, 2.0, np.inf])  # 2 / (1/1 + 1/3); misses stay misses
+
+
+def test_noisy_records_are_those_above_the_error_target_and_a_dark_record_counts_against_the_floor():
+    E = np.array([[1.0] * 3, [1.0] * 3, [1.0] * 3, [0.01] * 3])
+    error = np.array([0.5 * GATHER_ERROR, 2 * GATHER_ERROR, 0.0, 0.5 * GATHER_ERROR * GATHER_DARK])
+    gathers = Gathers(4)
+    gathers.add(slice(0, 4), _gather(E, np.ones(4), error), dict.fromkeys(COUNTERS, 0))
+    # record 3: 50 % noise on 1 % of the light is below the floor GATHER_DARK x mean E
+    assert gathers.noisy().tolist() == [1]
+    # a second gather as noisy halves the mean's variance: sqrt(2) / 2 x 2 = 1.41 x the target
+    gathers.add(np.array([1]), _gather(E[1:2], [1.0], error[1:2]), dict.fromkeys(COUNTERS, 0))
+    assert gathers.noisy().tolist() == [1]
+
+
+def test_a_record_any_gather_finds_inside_geometry_stays_black():
+    gathers = Gathers(2)
+    gathers.add(slice(0, 2), _gather(np.ones((2, 3)), np.ones(2), np.ones(2)), dict.fromkeys(COUNTERS, 0))
+    gathers.add(np.array([1]), _gather(np.zeros((1, 3)), [1.0], [0.0], inside=[True]), dict.fromkeys(COUNTERS, 0))
+    E, grad_r, grad_t, _ = gathers.means()
+    assert E[0].tolist() == [1.0] * 3 and not E[1].any() and not grad_r[1].any() and not grad_t[1].any()
+
+
+LAMP = PointLight("lamp", np.array([0.5, 0.5, 0.8]), np.full(3, 100.0))
+FINAL = preset("FINAL", photons=20_000, max_bounces=3, threads=1, hemisphere_theta=6, hemisphere_phi=12)
+
+
+def _indirect(seed: int, adaptive: bool) -> dict:
+    scene = quad_scene(box_faces(), {"floor": (0, 24), "back": (1, 24)}, [LAMP])
+    result = bake(scene, replace(FINAL, seed=seed, deviations=Deviations(adaptive_gathering=adaptive)))
+    assert (result.stats["counters"]["refine_extra_gathers"] > 0) == adaptive
+    return result.indirect
+
+
+def test_gathering_noisy_records_again_brings_two_seeds_closer():
+    # A lamp under a box's ceiling: records see its bright spot through a coarse 72-cell hemisphere.
+    def seed_difference(adaptive):
+        a, b = _indirect(1, adaptive), _indirect(2, adaptive)
+        return np.mean([np.sqrt(np.mean((a[k] - b[k]) ** 2)) / a[k].mean() for k in a])
+
+    assert seed_difference(True) < 0.96 * seed_difference(False)
