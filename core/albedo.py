@@ -37,12 +37,17 @@ def albedo(scene: Scene, triangles: np.ndarray, barycentric: np.ndarray) -> np.n
     if len(textured) == 0:
         return out
     # Hits grouped by texture with one sort (a mask per texture costs hits x textures).
-    textured = textured[np.argsort(texture[textured], kind="stable")]
+    # Few textures: a stable sort of 16-bit keys is numpy's radix sort, linear in the hits.
+    key_type = np.int16 if len(scene.textures) < 2 ** 15 else np.int64
+    textured = textured[np.argsort(texture[textured].astype(key_type), kind="stable")]
     keys = texture[textured]
     starts = np.flatnonzero(np.concatenate([[True], keys[1:] != keys[:-1]]))
-    uv_corner = scene.geometry.uvs[triangles[textured]].astype(np.float64)  # (s, 3, 2)
-    b = barycentric[textured]
-    uv = (1.0 - b[:, 0:1] - b[:, 1:2]) * uv_corner[:, 0] + b[:, 0:1] * uv_corner[:, 1] + b[:, 1:2] * uv_corner[:, 2]
+    uv_corner = np.take(scene.geometry.uvs, triangles[textured], axis=0).astype(np.float64)  # (s, 3, 2)
+    b = np.take(barycentric, textured, axis=0)
+    u, v = b[:, 0:1], b[:, 1:2]
+    uv = (1.0 - u - v) * uv_corner[:, 0]
+    uv += u * uv_corner[:, 1]
+    uv += v * uv_corner[:, 2]
     for start, stop in zip(starts, [*starts[1:], len(textured)]):
         out[textured[start:stop]] = np.clip(sample_texture(scene.textures[keys[start]], uv[start:stop]), 0.0, 1.0)
     return out
@@ -84,9 +89,19 @@ def sample_texture(texture: Texture, uv: np.ndarray) -> np.ndarray:
     j1 = (j0 + 1) % H
     # Rows of the flattened image: np.take of one row index per neighbour is several times cheaper
     # than indexing by (j, i) pairs.
-    flat = px.reshape(H * W, 3)
+    # Pixels as single 12-byte items: a 1-D take of them is cheaper than a take of (3,) rows.
+    pixel = np.ascontiguousarray(px).reshape(H * W, 3).view(np.dtype((np.void, 3 * px.itemsize))).ravel()
     row0, row1 = j0 * W, j1 * W
+
+    def at(rows):
+        return np.take(pixel, rows).view(px.dtype).reshape(-1, 3)
+
     gx = 1 - fx
-    bottom = np.take(flat, row0 + i0, axis=0) * gx + np.take(flat, row0 + i1, axis=0) * fx
-    top = np.take(flat, row1 + i0, axis=0) * gx + np.take(flat, row1 + i1, axis=0) * fx
-    return bottom * (1 - fy) + top * fy
+    bottom = at(row0 + i0) * gx
+    bottom += at(row0 + i1) * fx
+    top = at(row1 + i0) * gx
+    top += at(row1 + i1) * fx
+    bottom *= 1 - fy
+    top *= fy
+    bottom += top
+    return bottom
