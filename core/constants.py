@@ -168,6 +168,15 @@ VALIDITY_RAYS = 8
 """Hemisphere rays per texel sample (at most) of the texel validity test."""
 BACKFACE_FRACTION = 0.5
 """A sample is inside geometry when more than this fraction of its rays hit back faces."""
+EVIDENCE_PHOTONS = 8
+"""Nearest photons within R_min asked whether light reaches a sample the back-face vote put inside
+geometry (deviation: photon-evidence); one that sees the sample's side overrules the vote."""
+EVIDENCE_REACH = 0.5
+"""Photon-evidence: the photon arrived within this fraction of R_min (one texel at the default
+r_min_texels of 2): nearer evidence, as at 4 texels/m R_min is half a metre."""
+EVIDENCE_COS = 0.5
+"""Photon-evidence: the photon arrived on a surface facing within 60 degrees of the sample's normal
+(light on a wall beside a crevice says little about the crevice's floor)."""
 
 # --------------------------------------------------------------------------- direct light over texel footprints
 DIRECT_FOOTPRINT_PER_AXIS = 8

@@ -22,7 +22,7 @@ from .interpolation import interpolate
 from .irradiance_cache import CacheParameters, IrradianceCache, cache_for_holes
 from .refinement import GatherSources, refine_records
 from .settings import BakeSettings
-from .validity import texel_validity
+from .validity import reached_by_photons, texel_validity
 
 
 def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: GatherSources | None,
@@ -44,7 +44,14 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
                                           progress)
         else:
             inside, rays = np.zeros(len(points), bool), 0
-    stats.add(texel_samples_inside_geometry=int(inside.sum()), validity_rays=rays)
+        overruled = 0
+        if settings.deviations.photon_evidence and inside.any():  # deviation: photon-evidence, docs/DEVIATIONS.md
+            voted = np.flatnonzero(inside)
+            reached = reached_by_photons(caster, density, points.p[voted], points.n_geometric[voted], params.R_min)
+            inside[voted[reached]] = False
+            overruled = int(reached.sum())
+    stats.add(texel_samples_inside_geometry=int(inside.sum()), validity_rays=rays,
+              texel_samples_photon_evidence=overruled)
     valid = np.flatnonzero(~inside)
     progress.begin("Interpolating the cache at texels")
     with stats.stage("interpolate"):

@@ -36,6 +36,7 @@ from .photons import PhotonLighting
 from .real_rays import RealHits, indirect_on_both_sides, shade_real, trace_real
 from .record_walls import open_walls, wall_distances
 from .settings import BakeSettings, Deviations
+from .validity import reached_by_photons
 from .virtual_rays import fill_virtual
 
 RECORD_BATCH = 256
@@ -125,7 +126,7 @@ def refine_records(scene, caster, sources: GatherSources, cache: IrradianceCache
         lengths, photons = zones.batch(s) if records is None else zones.subset(rows)
         # A later round casts real rays into every cell: the photons would lend it the same virtual rays.
         return refine_batch(scene, serial, sources, cache.p[rows], cache.n[rows], lengths, photons, H,
-                            settings.reuse_photon_paths and not round, rng, r_floor, cache.hole[rows])
+                            settings.reuse_photon_paths and not round, rng, r_floor, cache.hole[rows], params.R_min)
 
     batches = slices(K, RECORD_BATCH)
     results = executor.map_chunks(run, batches, progress)
@@ -211,10 +212,12 @@ class Gathers:
 
 def refine_batch(scene, caster, sources: GatherSources, p_k: np.ndarray, n_k: np.ndarray, zone_lengths: np.ndarray,
                  zone_photons: np.ndarray, H: Hemisphere, reuse: bool, rng: np.random.Generator,
-                 r_floor: float, hole: np.ndarray | None = None) -> dict:
+                 r_floor: float, hole: np.ndarray | None = None, R_min: float = 0.0) -> dict:
     """Figure 4 for B records: probe, virtual rays, real rays for empty cells, then E_k and gradients.
 
     hole : (B,) bool, the hole records (placed at texel samples; only they can be found inside geometry).
+    R_min : the cache's; a photon that sees a hole record within half of it proves the record is
+        not inside geometry (deviation: photon-evidence).
     """
     B = len(p_k)
     t1, t2, n = local_frames(n_k)
@@ -239,6 +242,9 @@ def refine_batch(scene, caster, sources: GatherSources, p_k: np.ndarray, n_k: np
     if sources.deviations.record_validity and hole is not None and hole.any():
         real_rays = np.bincount(empty // H.cells, minlength=B) + probe_rays // max(B, 1)
         inside = inside_geometry(caster, real, H.cells, real_rays) & hole
+        if sources.deviations.photon_evidence and inside.any():  # deviation: photon-evidence, docs/DEVIATIONS.md
+            voted = np.flatnonzero(inside)
+            inside[voted[reached_by_photons(caster, sources.density, p_k[voted], n_k[voted], R_min)]] = False
         E[inside], grad_r[inside], grad_t[inside] = 0.0, 0.0, 0.0
     return {
         "E": E, "grad_r": grad_r, "grad_t": grad_t, "R": R,

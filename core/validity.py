@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .constants import BACKFACE_FRACTION, VALIDITY_RAYS
+from .constants import BACKFACE_FRACTION, EVIDENCE_COS, EVIDENCE_PHOTONS, EVIDENCE_REACH, VALIDITY_RAYS
 from .executor import TEXEL_CHUNK, slices
 from .rays import RayCaster
 from .sampling import cosine_hemisphere, orthonormal_basis
@@ -89,3 +89,33 @@ def texel_validity(caster: RayCaster, points, seed: list, executor, progress) ->
     caster.rays_cast += rays
     inside = np.concatenate([i for i, _ in parts]) if parts else np.zeros(0, bool)
     return inside, rays
+
+
+def reached_by_photons(caster: RayCaster, density, p: np.ndarray, n: np.ndarray, R_min: float) -> np.ndarray:
+    """(m,) bool: did a photon arrive within EVIDENCE_REACH R_min of p, on a surface facing as n does
+    (EVIDENCE_COS) whose side sees the side of p that n faces? (deviation: photon-evidence)
+
+    The back-face votes read a mesh's normals, which a user's model often has pointing the wrong way
+    on whole walls; Cycles shades both sides alike and lights what such a wall faces. A photon that
+    arrived nearby and can see the point proves light reaches it, whatever the normals say. Asks the
+    EVIDENCE_PHOTONS nearest photons, one occlusion ray per photon within reach.
+    p, n : (m, 3) points and their front-side normals; density : :class:`core.density.PhotonDensity`.
+    """
+    m = len(p)
+    reached = np.zeros(m, bool)
+    photons = len(density.p)
+    if m == 0 or photons == 0:
+        return reached
+    k = min(EVIDENCE_PHOTONS, photons)
+    dist, idx = density.tree.query(p, k=k, distance_upper_bound=EVIDENCE_REACH * R_min, workers=density.workers)
+    dist, idx = dist.reshape(m, k), idx.reshape(m, k)
+    point, photon = np.nonzero(np.isfinite(dist))
+    q_n = np.take(density.n, idx[point, photon], axis=0).astype(np.float64)
+    alike = np.einsum("ij,ij->i", q_n, np.take(n, point, axis=0)) > EVIDENCE_COS
+    point, photon, q_n = point[alike], photon[alike], q_n[alike]
+    if len(point) == 0:
+        return reached
+    q = np.take(density.p, idx[point, photon], axis=0).astype(np.float64)
+    seen = caster.sides_visible(np.take(p, point, axis=0), np.take(n, point, axis=0), q, q_n)
+    reached[point[seen]] = True
+    return reached

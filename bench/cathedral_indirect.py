@@ -1,0 +1,137 @@
+"""Cathedral (tests/cathedral.py): PDIC Final's indirect light against a converged Cycles pair, texel by texel.
+
+    .venv/bin/python bench/cathedral_indirect.py [--detail 0.3] [--res 512] [--spp 1024] [--bounces 32]
+
+The cathedral of bench/cathedral_direct.py (one mesh object, two point lights in the nave,
+black world, no materials: albedo 0.8). PDIC bakes Final at its defaults through the add-on's
+``BakeJob``; Cycles bakes Diffuse Indirect (no Color, adaptive sampling off, ``--bounces``
+diffuse bounces, sample clamping off) into the same ``PDIC_Lightmap`` UVs twice, with seeds 1
+and 2: their mean is the reference and their difference its noise, which is subtracted
+(bench/competitors.py ``errors``), cached in ``--out`` for the next run. Compared on texels both
+baked.
+
+Prints the noise-corrected relative RMSE per texel and on 8x8 blocks, the same over interior
+texels (bench/run.py ``interior_texels``), the mean ratio, and the share of 8x8 blocks off by
+more than 20 % (blocks whose reference mean is above 5 % of the map's, so the noise of two
+1,024-spp bakes cannot decide it) with the worst of them and the parts of the cathedral they
+lie on. Writes the maps to ``--out``.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
+import pdic_bootstrap  # noqa: E402
+
+pdic_bootstrap.load()
+import bpy  # noqa: E402
+
+import cycles_reference as cr  # noqa: E402
+from test_cathedral_direct_vs_cycles import build_cathedral_scene  # noqa: E402
+
+from bench.cathedral_direct import part, texel_geometry  # noqa: E402
+from bench.competitors import BLOCK, block_means, errors  # noqa: E402
+from bench.run import interior_texels  # noqa: E402
+from pdic import pdic_addon  # noqa: E402
+from pdic.pdic_addon import job as job_module  # noqa: E402
+from pdic.pdic_addon import writeback  # noqa: E402
+from pdic.pdic_addon.properties import to_settings  # noqa: E402
+from pdic.pdic_addon.uvmaps import LIGHTMAP_UV  # noqa: E402
+
+OFF = 0.20
+"""A block is off when its mean differs from the reference's by more than this (the issue's bound)."""
+LIT = 0.05
+"""Blocks whose reference mean is below this fraction of the map's mean are not judged (noise)."""
+
+
+def bake_final(folder: Path, resolution: int, threads: int):
+    """PDIC Final at the defaults through BakeJob, every mesh of the file; returns the job."""
+    props = bpy.context.scene.pdic
+    props.quality = "FINAL"
+    props.default_resolution = resolution
+    props.image_format = "EXR_FLOAT"
+    settings = to_settings(props, threads=threads)
+    job = job_module.BakeJob(bpy.context, settings, output_folder=str(folder / "maps"),
+                             cache_dir=folder / "unwrap_cache")
+    job.run()
+    return job
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--detail", type=float, default=0.3)
+    ap.add_argument("--res", type=int, default=512)
+    ap.add_argument("--spp", type=int, default=1024)
+    ap.add_argument("--bounces", type=int, default=32)
+    ap.add_argument("--threads", type=int, default=0)
+    ap.add_argument("--worst", type=int, default=5, help="worst blocks listed")
+    ap.add_argument("--out", default="/tmp/pdic_cathedral_indirect")
+    args = ap.parse_args(argv)
+    folder = Path(args.out)
+    folder.mkdir(parents=True, exist_ok=True)
+
+    pdic_addon.register()
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    ob = build_cathedral_scene(bpy, args.detail)
+    t, cpu = time.perf_counter(), time.process_time()
+    job = bake_final(folder, args.res, args.threads)
+    pdic_s, pdic_cpu = time.perf_counter() - t, time.process_time() - cpu
+    result = job.result
+    P = result.indirect[ob.name]
+    H, W = P.shape[:2]
+    writeback.set_shading([ob], baked=False)  # the PDIC copies emit the light map: hide them
+    cached = folder / f"reference_d{args.detail}_{W}x{H}_{args.spp}spp_{args.bounces}b.npz"
+    pair, seconds = [], 0.0
+    if cached.exists():  # the unwrap is deterministic: the same UVs, the same texels
+        with np.load(cached) as f:
+            pair, coverage, seconds = [f["C1"], f["C2"]], f["coverage"], float(f["seconds"])
+    else:
+        for seed in (1, 2):
+            t = time.perf_counter()
+            ref = cr.cycles_bake_full([ob], LIGHTMAP_UV, W, H, {"INDIRECT"}, args.spp, seed=seed,
+                                      diffuse_bounces=args.bounces, clamp_indirect=0.0)
+            seconds += time.perf_counter() - t
+            pair.append(ref.images[ob.name][..., :3])
+            coverage = ref.coverage[ob.name]
+        np.savez_compressed(cached, C1=pair[0], C2=pair[1], coverage=coverage, seconds=seconds)
+    baked = coverage & result.centre_inside[ob.name]
+    interior = interior_texels(job.extraction.scene)[ob.name]
+    np.savez_compressed(folder / f"d{args.detail}_{W}.npz", P=P, C1=pair[0], C2=pair[1], baked=baked,
+                        interior=interior)
+    err = errors(P, tuple(pair), baked, interior)
+    ntri = sum(len(p.vertices) - 2 for p in ob.data.polygons)
+    print(f"detail {args.detail}: {ntri:,} triangles, map {W}x{H}, {int(baked.sum()):,} texels compared "
+          f"({int((baked & interior).sum()):,} interior); PDIC Final {pdic_s:.1f} s wall, {pdic_cpu:.1f} CPU s "
+          f"(unwrap included); Cycles {args.spp} spp x 2, {args.bounces} bounces, {seconds:.0f} s")
+    seed_noise = np.sqrt(np.mean((pair[0] - pair[1])[baked] ** 2) / 2) / np.mean(0.5 * (pair[0] + pair[1])[baked])
+    print(f"reference noise per texel (one bake) {seed_noise:.2%}")
+    print(f"indirect, noise-corrected: per texel {err['texel']:.2%}, 8x8 blocks {err['block']:.2%}; interior "
+          f"{err['texel_interior']:.2%} / {err['block_interior']:.2%}; mean / reference {err['mean_ratio']:.4f}")
+
+    reference = 0.5 * (pair[0] + pair[1])
+    (pb, blocks), (cb, _) = block_means(P, baked), block_means(reference, baked)
+    lp, lc = pb.mean(axis=2), cb.mean(axis=2)
+    judged = blocks & (lc > LIT * lc[blocks].mean())
+    rel = np.where(judged, np.abs(lp - lc) / np.maximum(lc, 1e-30), 0.0)
+    off = judged & (rel > OFF)
+    print(f"8x8 blocks judged {int(judged.sum()):,} of {int(blocks.sum()):,}; off by > {OFF:.0%}: {int(off.sum())} "
+          f"({off.sum() / max(judged.sum(), 1):.2%}); worst {rel.max():.1%}")
+    order = np.argsort(rel, axis=None)[::-1][:args.worst]
+    by, bx = np.unravel_index(order, rel.shape)
+    rows, cols = by * BLOCK + BLOCK // 2, bx * BLOCK + BLOCK // 2
+    pos, nrm, _, _ = texel_geometry(ob, rows, cols, W, H)
+    for y, x, p, n in zip(by, bx, pos, nrm):
+        where = part(p, n) if np.isfinite(p).all() else "block centre on no triangle"
+        print(f"  block ({y}, {x}): PDIC {lp[y, x]:.4g}, Cycles {lc[y, x]:.4g} ({lp[y, x] / lc[y, x] - 1:+.1%}), {where}, "
+              f"p {np.round(p, 2).tolist()}")
+
+
+if __name__ == "__main__":
+    main()
