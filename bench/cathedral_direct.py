@@ -47,6 +47,14 @@ def build(detail: float):
     return build_cathedral_scene(bpy, detail)
 
 
+def prepare(out: str, detail: float):
+    """(the output folder, made; the cathedral object in a fresh file with the add-on registered)."""
+    folder = Path(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    pdic_addon.register()
+    return folder, build(detail)
+
+
 def texel_geometry(ob, rows, cols, width, height):
     """World position and geometric normal (n, 3) and polygon index (n,) of texel centres, via
     the evaluated triangles of ``PDIC_Lightmap``; the first triangle containing each centre."""
@@ -130,11 +138,7 @@ def main(argv=None):
     ap.add_argument("--threads", type=int, default=0, help="PDIC worker threads (1 for CPU-second comparisons)")
     ap.add_argument("--out", default="/tmp/pdic_cathedral_direct")
     args = ap.parse_args(argv)
-    folder = Path(args.out)
-    folder.mkdir(parents=True, exist_ok=True)
-
-    pdic_addon.register()
-    ob = build(args.detail)
+    folder, ob = prepare(args.out, args.detail)
     t, cpu = time.perf_counter(), time.process_time()
     job, _ = bake_pdic(bpy, folder, 1, args.res, threads=args.threads,
                        deviations=Deviations(direct_footprint=not args.no_footprint))

@@ -34,12 +34,9 @@ pdic_bootstrap.load()
 import bpy  # noqa: E402
 
 import cycles_reference as cr  # noqa: E402
-from test_cathedral_direct_vs_cycles import build_cathedral_scene  # noqa: E402
-
-from bench.cathedral_direct import part, texel_geometry  # noqa: E402
+from bench.cathedral_direct import part, prepare, texel_geometry  # noqa: E402
 from bench.competitors import BLOCK, block_means, errors  # noqa: E402
 from bench.run import interior_texels  # noqa: E402
-from pdic import pdic_addon  # noqa: E402
 from pdic.pdic_addon import job as job_module  # noqa: E402
 from pdic.pdic_addon import writeback  # noqa: E402
 from pdic.pdic_addon.properties import to_settings  # noqa: E402
@@ -74,12 +71,7 @@ def main(argv=None):
     ap.add_argument("--worst", type=int, default=5, help="worst blocks listed")
     ap.add_argument("--out", default="/tmp/pdic_cathedral_indirect")
     args = ap.parse_args(argv)
-    folder = Path(args.out)
-    folder.mkdir(parents=True, exist_ok=True)
-
-    pdic_addon.register()
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    ob = build_cathedral_scene(bpy, args.detail)
+    folder, ob = prepare(args.out, args.detail)
     t, cpu = time.perf_counter(), time.process_time()
     job = bake_final(folder, args.res, args.threads)
     pdic_s, pdic_cpu = time.perf_counter() - t, time.process_time() - cpu

@@ -111,7 +111,8 @@ def light_photons(scene, caster, photons, lighting: PhotonLighting, settings: Ba
 def refine_records(scene, caster, sources: GatherSources, cache: IrradianceCache, zones: Zones,
                    settings: BakeSettings, params: CacheParameters, executor: Executor,
                    progress: Progress | None = None, stream: int = STREAM_REFINE) -> tuple[IrradianceCache, dict]:
-    """Refined copy of ``cache`` and counters (rays cast, virtual rays, cells filled by them)."""
+    """Refined copy of ``cache`` and counters (rays cast, virtual rays, cells filled by them): every
+    record gathers once, the noisy ones again (deviation: adaptive-gathering, :class:`Gathers`)."""
     K = len(cache)
     if K == 0:
         return cache, {}

@@ -24,7 +24,8 @@ class Deviations:
     """Final: a hole record whose real gathering rays mostly hit back faces is inside geometry: E_k = 0."""
     photon_evidence: bool = True
     """A sample or hole record the back-face votes put inside geometry is outside after all when a photon
-    arrived within R_min on a surface that sees its side (faces whose normals point the wrong way)."""
+    arrived within half of R_min on a like-facing surface that sees its side (walls whose normals point
+    the wrong way)."""
     wall_sectors: bool = True
     """Records find the walls in their tangent plane; light is not interpolated past them."""
     zone_photon_floor: bool = True
