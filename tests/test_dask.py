@@ -89,13 +89,15 @@ def test_a_rebake_ships_no_array_again_and_tasks_carry_only_their_chunk(cluster)
 
     scene = _extract("cornell_point.blend")
     settings = _settings(20_000)
-    bake(scene, settings, executor=cluster)
     s = cluster.shipping
-    arrays, array_bytes, calls = s.arrays, s.array_bytes, s.calls
+    bake(scene, settings, executor=cluster)
+    arrays, array_bytes, calls, shapes = s.arrays, s.array_bytes, s.calls, len(s.array_shapes)
     bake(scene, settings, executor=cluster)
     assert s.calls > calls
-    # Only scipy's pickled kd-tree state differs between two builds of the same tree (not byte-stable).
-    assert s.array_bytes - array_bytes < 0.05 * array_bytes
+    # Only scipy's pickled kd-tree state (a byte buffer, not byte-stable between two builds of the same
+    # tree) ships again: 479 kB of the 7.2 MB the first bake ships when it runs alone.
+    assert all(dtype == "|S1" for dtype, _ in s.array_shapes[shapes:]), s.array_shapes[shapes:]
+    assert s.array_bytes - array_bytes < 0.1 * array_bytes
     # Closures refer to the large arrays (photons, texels, records) by key: each is a small part of them.
     assert max(call.closure_bytes for call in s.per_call) < array_bytes / 10
     assert s.tasks > 0 and s.task_bytes / s.tasks < 1_000
