@@ -22,7 +22,7 @@ from .interpolation import interpolate
 from .irradiance_cache import CacheParameters, IrradianceCache, cache_for_holes
 from .refinement import GatherSources, refine_records
 from .settings import BakeSettings
-from .validity import reached_by_photons, texel_validity
+from .validity import overrule_by_photons, texel_validity
 
 
 def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: GatherSources | None,
@@ -45,11 +45,8 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
         else:
             inside, rays = np.zeros(len(points), bool), 0
         overruled = 0
-        if settings.deviations.photon_evidence and inside.any():  # deviation: photon-evidence, docs/DEVIATIONS.md
-            voted = np.flatnonzero(inside)
-            reached = reached_by_photons(caster, density, points.p[voted], points.n_geometric[voted], params.R_min)
-            inside[voted[reached]] = False
-            overruled = int(reached.sum())
+        if settings.deviations.photon_evidence:  # deviation: photon-evidence, docs/DEVIATIONS.md
+            overruled = overrule_by_photons(inside, caster, density, points.p, points.n_geometric, params.R_min)
     stats.add(texel_samples_inside_geometry=int(inside.sum()), validity_rays=rays,
               texel_samples_photon_evidence=overruled)
     valid = np.flatnonzero(~inside)

@@ -36,7 +36,7 @@ from .photons import PhotonLighting
 from .real_rays import RealHits, indirect_on_both_sides, shade_real, trace_real
 from .record_walls import open_walls, wall_distances
 from .settings import BakeSettings, Deviations
-from .validity import reached_by_photons
+from .validity import overrule_by_photons
 from .virtual_rays import fill_virtual
 
 RECORD_BATCH = 256
@@ -243,9 +243,8 @@ def refine_batch(scene, caster, sources: GatherSources, p_k: np.ndarray, n_k: np
     if sources.deviations.record_validity and hole is not None and hole.any():
         real_rays = np.bincount(empty // H.cells, minlength=B) + probe_rays // max(B, 1)
         inside = inside_geometry(caster, real, H.cells, real_rays) & hole
-        if sources.deviations.photon_evidence and inside.any():  # deviation: photon-evidence, docs/DEVIATIONS.md
-            voted = np.flatnonzero(inside)
-            inside[voted[reached_by_photons(caster, sources.density, p_k[voted], n_k[voted], R_min)]] = False
+        if sources.deviations.photon_evidence:  # deviation: photon-evidence, docs/DEVIATIONS.md
+            overrule_by_photons(inside, caster, sources.density, p_k, n_k, R_min)
         E[inside], grad_r[inside], grad_t[inside] = 0.0, 0.0, 0.0
     return {
         "E": E, "grad_r": grad_r, "grad_t": grad_t, "R": R,

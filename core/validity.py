@@ -91,6 +91,16 @@ def texel_validity(caster: RayCaster, points, seed: list, executor, progress) ->
     return inside, rays
 
 
+def overrule_by_photons(inside: np.ndarray, caster: RayCaster, density, p: np.ndarray, n: np.ndarray,
+                        R_min: float) -> int:
+    """Clear ``inside`` (m,) bool, a back-face vote's verdicts on points p facing n (m, 3), where
+    :func:`reached_by_photons` finds light reaching them; returns how many (deviation: photon-evidence)."""
+    voted = np.flatnonzero(inside)
+    reached = voted[reached_by_photons(caster, density, p[voted], n[voted], R_min)]
+    inside[reached] = False
+    return len(reached)
+
+
 def reached_by_photons(caster: RayCaster, density, p: np.ndarray, n: np.ndarray, R_min: float) -> np.ndarray:
     """(m,) bool: did a photon arrive within EVIDENCE_REACH R_min of p, on a surface facing as n does
     (EVIDENCE_COS) whose side sees the side of p that n faces? (deviation: photon-evidence)
