@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pdic.core.scene import BakeTarget, Geometry, Materials, Scene, recentre
+from pdic.core.scene import BakeTarget, Geometry, Materials, PointLight, Scene, recentre
 
 
 def icosphere(subdivisions: int = 3, radius: float = 1.0, inward: bool = True) -> np.ndarray:
@@ -65,6 +65,15 @@ def box_faces() -> list:
     return [quad([0, 0, 0], [1, 0, 0], [0, 1, 0]), quad([0, 1, 0], [1, 0, 0], [0, 0, 1]),
             quad([0, 0, 1], [0, 1, 0], [1, 0, 0]), quad([0, 0, 0], [0, 0, 1], [1, 0, 0]),
             quad([0, 0, 0], [0, 1, 0], [0, 0, 1]), quad([1, 0, 0], [0, 0, 1], [0, 1, 0])]
+
+
+BOX_LAMP = PointLight("lamp", np.array([0.5, 0.5, 0.8]), np.full(3, 100.0))
+"""A 100 W point light under the ceiling of :func:`box_faces`' unit box (world space)."""
+
+
+def lamp_box(resolution: int) -> Scene:
+    """The unit box lit by BOX_LAMP, its floor and back wall the bake targets at ``resolution``^2."""
+    return quad_scene(box_faces(), {"floor": (0, resolution), "back": (1, resolution)}, [BOX_LAMP])
 
 
 def quad_scene(faces, targets: dict, lights, albedo: float = 0.7, emission=None, materials=None,

@@ -9,10 +9,9 @@ import numpy as np
 from pdic.core.constants import GATHER_DARK, GATHER_ERROR
 from pdic.core.pipeline import bake
 from pdic.core.refinement import COUNTERS, Gathers
-from pdic.core.scene import PointLight
 from pdic.core.settings import Deviations, preset
 
-from scenes import box_faces, quad_scene
+from scenes import lamp_box
 
 
 def _gather(E, R, error, inside=None):
@@ -65,12 +64,11 @@ def test_a_record_any_gather_finds_inside_geometry_stays_black():
     assert E[0].tolist() == [1.0] * 3 and not E[1].any() and not grad_r[1].any() and not grad_t[1].any()
 
 
-LAMP = PointLight("lamp", np.array([0.5, 0.5, 0.8]), np.full(3, 100.0))
 FINAL = preset("FINAL", photons=20_000, max_bounces=3, threads=1, hemisphere_theta=6, hemisphere_phi=12)
 
 
 def _indirect(seed: int, adaptive: bool) -> dict:
-    scene = quad_scene(box_faces(), {"floor": (0, 24), "back": (1, 24)}, [LAMP])
+    scene = lamp_box(24)
     result = bake(scene, replace(FINAL, seed=seed, deviations=Deviations(adaptive_gathering=adaptive)))
     assert (result.stats["counters"]["refine_extra_gathers"] > 0) == adaptive
     return result.indirect

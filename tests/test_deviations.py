@@ -7,18 +7,16 @@ import numpy as np
 import pytest
 
 from pdic.core.pipeline import bake
-from pdic.core.scene import PointLight
 from pdic.core.settings import Deviations, preset
 
-from scenes import box_faces, quad_scene
+from scenes import lamp_box
 
-LAMP = PointLight("lamp", np.array([0.5, 0.5, 0.8]), np.full(3, 100.0))
 FINAL = preset("FINAL", photons=4000, max_bounces=3, threads=1, hemisphere_theta=6, hemisphere_phi=12)
 
 
 def _box():
     # 24 texels: R_min (2 texels) is below R_max, so zones differ in size
-    return quad_scene(box_faces(), {"floor": (0, 24), "back": (1, 24)}, [LAMP])
+    return lamp_box(24)
 
 
 def _bake(settings, **switches):

@@ -10,17 +10,15 @@ from pdic.core.bake_cache import BakeCache
 from pdic.core.executor import Executor
 from pdic.core.pipeline import bake
 from pdic.core.rays import RayCaster
-from pdic.core.scene import PointLight
 from pdic.core.settings import preset
 
-from scenes import box_faces, quad_scene
+from scenes import lamp_box
 
-LAMP = PointLight("lamp", np.array([0.5, 0.5, 0.8]), np.full(3, 100.0))
 RAY_STAGES = ("direct", "photons", "cache", "photon_direct", "refine", "interpolate")
 
 
 def _box():
-    return quad_scene(box_faces(), {"floor": (0, 12), "back": (1, 12)}, [LAMP])
+    return lamp_box(12)
 
 
 @pytest.mark.parametrize("threads", [1, 2])

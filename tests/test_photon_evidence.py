@@ -4,16 +4,13 @@ out of it is lit like one whose normals point in; the back-face votes alone call
 geometry (the cathedral's south wall and apse: capitals and columns facing them came out black)."""
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from pdic.core.pipeline import bake
-from pdic.core.scene import PointLight
 from pdic.core.settings import Deviations, preset
 
-from scenes import box_faces, quad_scene
+from scenes import BOX_LAMP, box_faces, quad_scene
 
-LAMP = PointLight("lamp", np.array([0.5, 0.5, 0.8]), np.full(3, 100.0))
 
 
 def _room(walls_face_out: bool):
@@ -21,7 +18,7 @@ def _room(walls_face_out: bool):
     faces = box_faces()
     if walls_face_out:
         faces = [faces[0]] + [face[:, ::-1] for face in faces[1:]]
-    return quad_scene(faces, {"floor": (0, 16)}, [LAMP])
+    return quad_scene(faces, {"floor": (0, 16)}, [BOX_LAMP])
 
 
 def _floor(quality: str, walls_face_out: bool, **deviations):

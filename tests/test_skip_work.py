@@ -12,14 +12,13 @@ from pdic.core.pipeline import bake
 from pdic.core.scene import PointLight, SpotLight
 from pdic.core.settings import preset
 
-from scenes import box_faces, quad, quad_scene
+from scenes import BOX_LAMP, box_faces, quad, quad_scene
 
 FLOOR, BACK, CEILING = 0, 1, 2
 _box_faces = box_faces
 _scene = quad_scene
 
 
-LAMP = PointLight("lamp", np.array([0.5, 0.5, 0.8]), np.full(3, 100.0))
 SETTINGS = preset("PREVIEW", photons=4000, max_bounces=3, threads=1)
 
 
@@ -29,14 +28,14 @@ def _counters(result) -> dict:
 
 # --------------------------------------------------------------------------- emitters
 def test_no_emitter_triangle_sampling_without_emissive_meshes():
-    c = _counters(bake(_scene(_box_faces(), {"floor": (FLOOR, 8)}, [LAMP]), SETTINGS))
+    c = _counters(bake(_scene(_box_faces(), {"floor": (FLOOR, 8)}, [BOX_LAMP]), SETTINGS))
     assert c["emissive_triangles"] == 0 and c["shadow_rays_emissive"] == 0
     assert f"shadow_rays_skipped_points:{EMISSIVE_KEY}" not in c
     assert c["photon_emitters"] == 1
     # The same box with a glowing ceiling does sample it.
     material = np.zeros(12, np.int32)
     material[2 * CEILING:2 * CEILING + 2] = 1
-    glowing = _scene(_box_faces(), {"floor": (FLOOR, 8)}, [LAMP], emission=np.array([[0, 0, 0], [1.0, 1, 1]]),
+    glowing = _scene(_box_faces(), {"floor": (FLOOR, 8)}, [BOX_LAMP], emission=np.array([[0, 0, 0], [1.0, 1, 1]]),
                      materials=material)
     c = _counters(bake(glowing, SETTINGS))
     assert c["emissive_triangles"] == 2 and c["shadow_rays_emissive"] > 0 and c["photon_emitters"] == 2
@@ -45,7 +44,7 @@ def test_no_emitter_triangle_sampling_without_emissive_meshes():
 # --------------------------------------------------------------------------- photons
 def test_photons_leaving_an_open_scene_stop_at_once():
     # A lone floor under a lamp: half the photons fly up and out; bounced ones all leave.
-    scene = _scene([quad([0, 0, 0], [1, 0, 0], [0, 1, 0])], {"floor": (0, 8)}, [LAMP])
+    scene = _scene([quad([0, 0, 0], [1, 0, 0], [0, 1, 0])], {"floor": (0, 8)}, [BOX_LAMP])
     result = bake(scene, SETTINGS)
     c = _counters(result)
     # Every photon ray either stores a hit or escapes, and an escaped photon is never traced again.
@@ -56,8 +55,8 @@ def test_photons_leaving_an_open_scene_stop_at_once():
 
 # --------------------------------------------------------------------------- targets
 def test_objects_not_baked_are_not_rasterised():
-    one = bake(_scene(_box_faces(), {"floor": (FLOOR, 8)}, [LAMP]), SETTINGS)
-    two = bake(_scene(_box_faces(), {"floor": (FLOOR, 8), "back": (BACK, 8)}, [LAMP]), SETTINGS)
+    one = bake(_scene(_box_faces(), {"floor": (FLOOR, 8)}, [BOX_LAMP]), SETTINGS)
+    two = bake(_scene(_box_faces(), {"floor": (FLOOR, 8), "back": (BACK, 8)}, [BOX_LAMP]), SETTINGS)
     assert _counters(one)["targets_rasterised"] == 1 and _counters(two)["targets_rasterised"] == 2
     assert _counters(one)["texel_samples"] == 8 * 8 * 4  # only the floor's 2x2 samples per texel
     assert list(one.lightmaps) == ["floor"]
@@ -108,7 +107,7 @@ def test_texels_a_light_cannot_reach_cast_no_shadow_rays_for_it():
 # --------------------------------------------------------------------------- reuse
 @pytest.mark.parametrize("quality", ["PREVIEW", "FINAL"])
 def test_rebaking_an_unchanged_scene_reuses_photons_cache_and_texels(quality):
-    scene = _scene(_box_faces(), {"floor": (FLOOR, 12), "back": (BACK, 12)}, [LAMP])
+    scene = _scene(_box_faces(), {"floor": (FLOOR, 12), "back": (BACK, 12)}, [BOX_LAMP])
     settings = preset(quality, photons=4000, max_bounces=3, threads=1, hemisphere_theta=6, hemisphere_phi=12)
     store = BakeCache()
     first = bake(scene, settings, cache=store)
@@ -128,7 +127,7 @@ def test_rebaking_an_unchanged_scene_reuses_photons_cache_and_texels(quality):
 
 
 def test_cache_folder_serves_a_new_session(tmp_path):
-    scene = _scene(_box_faces(), {"floor": (FLOOR, 8)}, [LAMP])
+    scene = _scene(_box_faces(), {"floor": (FLOOR, 8)}, [BOX_LAMP])
     first = bake(scene, SETTINGS, cache=BakeCache(tmp_path))
     again = bake(scene, SETTINGS, cache=BakeCache(tmp_path))  # nothing in memory: read from disk
     assert _counters(again)["photon_rays"] == 0 and _counters(again)["rays_cast"] == 0
@@ -138,13 +137,13 @@ def test_cache_folder_serves_a_new_session(tmp_path):
 @pytest.mark.slow
 def test_changing_the_scene_invalidates_the_cache():
     store = BakeCache()
-    bake(_scene(_box_faces(), {"floor": (FLOOR, 8)}, [LAMP]), SETTINGS, cache=store)
-    brighter = PointLight("lamp", LAMP.position, np.full(3, 200.0))
+    bake(_scene(_box_faces(), {"floor": (FLOOR, 8)}, [BOX_LAMP]), SETTINGS, cache=store)
+    brighter = PointLight("lamp", BOX_LAMP.position, np.full(3, 200.0))
     again = bake(_scene(_box_faces(), {"floor": (FLOOR, 8)}, [brighter]), SETTINGS, cache=store)
     c = _counters(again)
     assert c["photon_rays"] > 0 and c["targets_shaded_direct"] == 1 and c["targets_rasterised"] == 0
     moved = [f + [0, 0, 0.01 * (i == CEILING)] for i, f in enumerate(_box_faces())]
-    c = _counters(bake(_scene(moved, {"floor": (FLOOR, 8)}, [LAMP]), SETTINGS, cache=store))
+    c = _counters(bake(_scene(moved, {"floor": (FLOOR, 8)}, [BOX_LAMP]), SETTINGS, cache=store))
     assert c["photon_rays"] > 0 and c["targets_shaded_direct"] == 1
 
 
@@ -152,23 +151,23 @@ def test_changing_the_scene_invalidates_the_cache():
 def test_changing_one_resolution_redoes_only_that_object():
     store = BakeCache()
     settings = preset("FINAL", photons=4000, max_bounces=3, threads=1, hemisphere_theta=6, hemisphere_phi=12)
-    before = bake(_scene(_box_faces(), {"floor": (FLOOR, 12), "back": (BACK, 12)}, [LAMP]), settings, cache=store)
+    before = bake(_scene(_box_faces(), {"floor": (FLOOR, 12), "back": (BACK, 12)}, [BOX_LAMP]), settings, cache=store)
     # Finer back wall: the coarsest texel (hence R_min) is unchanged, so photons and cache are reused.
-    after = bake(_scene(_box_faces(), {"floor": (FLOOR, 12), "back": (BACK, 20)}, [LAMP]), settings, cache=store)
+    after = bake(_scene(_box_faces(), {"floor": (FLOOR, 12), "back": (BACK, 20)}, [BOX_LAMP]), settings, cache=store)
     c = _counters(after)
     assert c["targets_rasterised"] == 1 and c["targets_shaded_direct"] == 1 and c["targets_shaded_indirect"] == 1
     assert c["photon_rays"] == 0 and c.get("refine_rays_cast", 0) == 0
     np.testing.assert_array_equal(before.lightmaps["floor"], after.lightmaps["floor"])
     assert after.lightmaps["back"].shape == (20, 20, 4)
     # A coarser back wall moves R_min: the cache is rebuilt, the photon map still reused.
-    coarse = bake(_scene(_box_faces(), {"floor": (FLOOR, 12), "back": (BACK, 8)}, [LAMP]), settings, cache=store)
+    coarse = bake(_scene(_box_faces(), {"floor": (FLOOR, 12), "back": (BACK, 8)}, [BOX_LAMP]), settings, cache=store)
     c = _counters(coarse)
     assert c["photon_rays"] == 0 and c["records"] > 0 and c["targets_rasterised"] == 1
 
 
 @pytest.mark.slow
 def test_reused_photon_map_serves_several_caches_without_mixing_them():
-    scene = _scene(_box_faces(), {"floor": (FLOOR, 10)}, [LAMP])
+    scene = _scene(_box_faces(), {"floor": (FLOOR, 10)}, [BOX_LAMP])
     settings = preset("FINAL", photons=4000, max_bounces=3, threads=1, hemisphere_theta=6, hemisphere_phi=12)
     store = BakeCache()
     first = bake(scene, settings, cache=store)
