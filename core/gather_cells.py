@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .constants import GRADIENT_LIMIT
 from .hemisphere import Hemisphere, gradient_to_world
 from .vectors import norms
 
@@ -110,16 +111,17 @@ class CellSums:
 
 def limit_gradients(E: np.ndarray, grad_t: np.ndarray, grad_r: np.ndarray, zone_radius: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
-    """Gradient limiting: extrapolation across a zone may change E_k by at most E_k.
+    """Gradient limiting: extrapolation across a zone may change E_k by at most GRADIENT_LIMIT x E_k.
 
     deviation: gradient-limiting, docs/DEVIATIONS.md. Ward & Heckbert's translational gradient
     divides by the distance of each cell's hit; near a corner that distance is tiny and a single
-    cell makes the gradient explode. Each channel's |grad_t| is capped at E_k / (a R_k) and
-    |grad_r| at E_k (per radian), as production irradiance caches do.
+    cell makes the gradient explode. Each channel's |grad_t| is capped at GRADIENT_LIMIT x E_k / (a R_k)
+    and |grad_r| at E_k (per radian), as production irradiance caches do.
     """
     def cap(grad, limit):
         norm = norms(grad)  # (K, 3 channels)
         scale = np.divide(limit, norm, out=np.ones_like(norm), where=norm > limit)
         return grad * scale[..., None]
 
-    return cap(grad_t, E / np.maximum(zone_radius, 1e-300)[:, None]), cap(grad_r, E)
+    return (cap(grad_t, GRADIENT_LIMIT * E / np.maximum(zone_radius, 1e-300)[:, None]),
+            cap(grad_r, E))
