@@ -242,7 +242,7 @@ def refine_batch(scene, caster, sources: GatherSources, p_k: np.ndarray, n_k: np
     # deviation: record-validity, docs/DEVIATIONS.md
     if sources.deviations.record_validity and hole is not None and hole.any():
         real_rays = np.bincount(empty // H.cells, minlength=B) + probe_rays // max(B, 1)
-        inside = inside_geometry(caster, real, H.cells, real_rays) & hole
+        inside = record_inside_geometry(caster, real, H.cells, real_rays) & hole
         if sources.deviations.photon_evidence:  # deviation: photon-evidence, docs/DEVIATIONS.md
             overrule_by_photons(inside, caster, sources.density, p_k, n_k, R_min)
         E[inside], grad_r[inside], grad_t[inside] = 0.0, 0.0, 0.0
@@ -261,7 +261,7 @@ def refine_batch(scene, caster, sources: GatherSources, p_k: np.ndarray, n_k: np
     }
 
 
-def inside_geometry(caster, real: RealHits, cells: int, real_rays: np.ndarray) -> np.ndarray:
+def record_inside_geometry(caster, real: RealHits, cells: int, real_rays: np.ndarray) -> np.ndarray:
     """(B,) bool: records whose real gathering rays (``real_rays`` (B,) cast each) mostly hit back faces.
 
     Texel validity's test (:mod:`core.validity`, BACKFACE_FRACTION) with the hundreds of rays a

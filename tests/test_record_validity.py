@@ -6,7 +6,7 @@ import numpy as np
 
 from pdic.core.rays import RayCaster
 from pdic.core.real_rays import RealHits
-from pdic.core.refinement import inside_geometry
+from pdic.core.refinement import record_inside_geometry
 from pdic.core.sampling import cosine_hemisphere, to_world
 
 from scenes import box_faces
@@ -32,6 +32,6 @@ def test_a_record_inside_a_closed_solid_is_inside_and_one_above_it_is_not():
     p = np.array([[0.5, 0.5, 0.01], [0.5, 0.5, 1.5], [0.5, 0.5, 1.01]])
     n = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]])  # inside; above, looking up; on top, looking down
     real = _gather(caster, p, n, CELLS)
-    assert inside_geometry(caster, real, CELLS, np.full(3, CELLS)).tolist() == [True, False, False]
+    assert record_inside_geometry(caster, real, CELLS, np.full(3, CELLS)).tolist() == [True, False, False]
     # Fewer real rays than texel validity's eight (photons lent the other cells' light): no verdict.
-    assert not inside_geometry(caster, real, CELLS, np.full(3, 4)).any()
+    assert not record_inside_geometry(caster, real, CELLS, np.full(3, 4)).any()
