@@ -63,9 +63,9 @@ CELL_DISTANCE_FLOOR = 1e-3
 (nearly) zero distance would make the translational gradient overflow."""
 GRADIENT_LIMIT = 0.5
 """Gradient limiting: a record's translational gradient may change E_k by at most this fraction of it
-across its zone (|grad_t| <= GRADIENT_LIMIT E_k / (a R_k)). The gradients of a 512-cell gather are
-noisy; at 1.0 they were half of the occluded building's per-texel noise at 4 texels/m
-(docs/DEVIATIONS.md, gradient-limiting)."""
+across its zone (|grad_t| <= GRADIENT_LIMIT E_k / (a R_k)). At 1.0 the large gradients it admitted
+were half of the occluded building's per-texel seed noise at 4 texels/m (docs/DEVIATIONS.md,
+gradient-limiting)."""
 ABOVE_PLANE = 1e-9
 """A virtual ray's previous hit counts as above the record's tangent plane when its height
 exceeds this fraction of its distance."""

@@ -46,7 +46,7 @@ def _seed_difference() -> float:
 
 
 def test_the_tighter_limit_brings_two_seeds_closer(monkeypatch):
-    # A lamp under a box's ceiling, 72 gathering cells: the gradients are noisy (0.877x measured).
+    # A lamp under a box's ceiling, a coarse 72-cell hemisphere (0.877x measured).
     tight = _seed_difference()
     monkeypatch.setattr(gather_cells, "GRADIENT_LIMIT", 1.0)
     assert tight < 0.95 * _seed_difference()
