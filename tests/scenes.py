@@ -76,6 +76,12 @@ def lamp_box(resolution: int) -> Scene:
     return quad_scene(box_faces(), {"floor": (0, resolution), "back": (1, resolution)}, [BOX_LAMP])
 
 
+def seed_difference(a: dict, b: dict) -> float:
+    """Two bakes' maps by target name (e.g. ``result.indirect`` of two seeds): the mean over targets of
+    their RMS difference relative to the first's mean."""
+    return float(np.mean([np.sqrt(np.mean((a[k] - b[k]) ** 2)) / a[k].mean() for k in a]))
+
+
 def quad_scene(faces, targets: dict, lights, albedo: float = 0.7, emission=None, materials=None,
                extra=None) -> Scene:
     """A scene of quads in world space (recentred), some of them bake targets.

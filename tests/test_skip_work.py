@@ -12,7 +12,7 @@ from pdic.core.pipeline import bake
 from pdic.core.scene import PointLight, SpotLight
 from pdic.core.settings import preset
 
-from scenes import BOX_LAMP, box_faces, quad, quad_scene
+from scenes import BOX_LAMP, box_faces, lamp_box, quad, quad_scene
 
 FLOOR, BACK, CEILING = 0, 1, 2
 _box_faces = box_faces
@@ -107,7 +107,7 @@ def test_texels_a_light_cannot_reach_cast_no_shadow_rays_for_it():
 # --------------------------------------------------------------------------- reuse
 @pytest.mark.parametrize("quality", ["PREVIEW", "FINAL"])
 def test_rebaking_an_unchanged_scene_reuses_photons_cache_and_texels(quality):
-    scene = _scene(_box_faces(), {"floor": (FLOOR, 12), "back": (BACK, 12)}, [BOX_LAMP])
+    scene = lamp_box(12)
     settings = preset(quality, photons=4000, max_bounces=3, threads=1, hemisphere_theta=6, hemisphere_phi=12)
     store = BakeCache()
     first = bake(scene, settings, cache=store)
@@ -151,7 +151,7 @@ def test_changing_the_scene_invalidates_the_cache():
 def test_changing_one_resolution_redoes_only_that_object():
     store = BakeCache()
     settings = preset("FINAL", photons=4000, max_bounces=3, threads=1, hemisphere_theta=6, hemisphere_phi=12)
-    before = bake(_scene(_box_faces(), {"floor": (FLOOR, 12), "back": (BACK, 12)}, [BOX_LAMP]), settings, cache=store)
+    before = bake(lamp_box(12), settings, cache=store)
     # Finer back wall: the coarsest texel (hence R_min) is unchanged, so photons and cache are reused.
     after = bake(_scene(_box_faces(), {"floor": (FLOOR, 12), "back": (BACK, 20)}, [BOX_LAMP]), settings, cache=store)
     c = _counters(after)
