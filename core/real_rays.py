@@ -94,17 +94,21 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
     ``sources.hit_grid`` (deviation: hit-grid) a hit that sees its grid cell's centroid reads
     E_direct + E_indirect from the cell (one occlusion ray); the rest are shaded as above.
     """
-    rho = albedo_at(scene, triangle, barycentric).astype(np.float64)
     n_face = np.take(caster.face_normals, triangle, axis=0)
     back = np.einsum("ij,ij->i", n_face, direction) > 0  # the ray reached the face's back side
     n_hit = np.where(back[:, None], -n_face, n_face)
     if sources.hit_grid is None:
         E, rays = _irradiance_at_hits(scene, caster, sources, q, n_hit, rng)
-        return rho * E / np.pi, rays
-    # deviation: hit-grid, docs/DEVIATIONS.md: the hit's grid cell, if the hit sees its centroid.
-    E, centroid = sources.hit_grid.lookup(triangle, barycentric, back)
+        return albedo_at(scene, triangle, barycentric).astype(np.float64) * E / np.pi, rays
+    # deviation: hit-grid, docs/DEVIATIONS.md: the hit's grid cell (its E and mean albedo), if the
+    # hit sees its centroid.
+    E, centroid, rho = sources.hit_grid.lookup(triangle, barycentric, back)
     own = np.flatnonzero(~caster.sides_visible(q, n_hit, centroid, n_hit))
     rays = len(q)
+    if rho is None:
+        rho = albedo_at(scene, triangle, barycentric).astype(np.float64)
+    elif len(own):
+        rho[own] = albedo_at(scene, triangle[own], barycentric[own])
     if len(own):
         E[own], own_rays = _irradiance_at_hits(scene, caster, sources, q[own], n_hit[own], rng)
         rays += own_rays

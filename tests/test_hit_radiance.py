@@ -6,7 +6,9 @@ from dataclasses import replace
 import numpy as np
 
 from pdic.core.executor import make_executor
-from pdic.core.hit_radiance import HitGrid, build_hit_grid, grid_points, grid_sides
+from pdic.core import scene as sc
+from pdic.core.albedo import albedo
+from pdic.core.hit_radiance import HitGrid, build_hit_grid, cell_albedo, grid_points, grid_sides
 from pdic.core.pipeline import bake
 from pdic.core.rays import RayCaster
 from pdic.core.scene import PointLight
@@ -34,8 +36,8 @@ def test_each_cell_centroid_reads_its_own_cell_on_either_side():
     E[0, :, 0] = np.arange(len(q))
     E[1, :, 1] = np.arange(len(q))
     grid = HitGrid(L, offset, E, E, q)
-    front, centroid = grid.lookup(triangle, uv, np.zeros(len(q), bool))
-    back, _ = grid.lookup(triangle, uv, np.ones(len(q), bool))
+    front, centroid, _ = grid.lookup(triangle, uv, np.zeros(len(q), bool))
+    back, _, _ = grid.lookup(triangle, uv, np.ones(len(q), bool))
     assert np.allclose(centroid, q)
     assert np.array_equal(front[:, 0], np.arange(len(q))) and not front[:, 1].any()
     assert np.array_equal(back[:, 1], np.arange(len(q))) and not back[:, 0].any()
@@ -86,3 +88,36 @@ def test_the_switch_builds_the_grid_and_the_hole_records_reuse_its_direct_light(
     # The hole records' grid reads the refined records but reuses pass 3's direct light.
     assert on["holes_hit_grid_cells"] == on["hit_grid_cells"] and on["holes_hit_grid_shadow_rays"] == 0
     assert "hit_grid_cells" not in off and "holes_hit_grid_cells" not in off
+
+
+def test_a_cell_holds_the_mean_albedo_over_it():
+    """Plain material: its base colour exactly. A texture ramping linearly in u: the cell centroid's
+    value (a four-point rule symmetric about the centroid is exact for linear albedo). A checker of
+    about one square per cell: closer to the cell's mean (dense sampling) than the centroid alone."""
+    tris = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]] * 3, float)
+    uvs = np.array([[[0.1, 0.1], [0.9, 0.1], [0.1, 0.9]], [[0.1, 0.1], [0.9, 0.1], [0.1, 0.9]],
+                    [[0, 0], [5.3, 0], [0, 5.3]]], np.float32)
+    ramp = np.repeat(np.linspace(0, 1, 256, dtype=np.float32)[None, :, None], 4, axis=0).repeat(3, axis=2)
+    checker = np.array([[[1, 1, 1], [0, 0, 0]], [[0, 0, 0], [1, 1, 1]]], np.float32)
+    geometry = sc.Geometry(tris, np.tile([0, 0, 1.0], (3, 3, 1)), uvs, np.array([0, 1, 2]), np.zeros(3))
+    materials = sc.Materials(("plain", "ramp", "checker"), np.array([[0.2, 0.4, 0.6], [1, 1, 1], [1, 1, 1]]),
+                             np.array([-1, 0, 1]), np.zeros((3, 3)))
+    scene = sc.Scene(geometry, materials,
+                     textures=(sc.Texture("ramp", ramp, "Linear"), sc.Texture("checker", checker, "Closest")))
+    L = np.array([4, 4, 4])
+    offset, triangle, q = grid_points(tris, L)
+    rho = cell_albedo(scene, L, offset, triangle, make_executor(1), None)[:, 0]
+    at_centroid = albedo(scene, triangle, _barycentric(tris, triangle, q))[:, 0]
+    plain, ramp_cells, checker_cells = (triangle == t for t in range(3))
+    assert np.all(rho[plain] == np.float32(0.2))
+    assert np.allclose(rho[ramp_cells], at_centroid[ramp_cells], atol=1e-5)
+    # The checker cells' mean: points drawn over the triangle, binned into the cells they fall in.
+    uv = np.random.default_rng(1).random((200_000, 2))
+    uv = np.where(uv.sum(axis=1, keepdims=True) > 1, 1 - uv, uv)
+    tri = np.full(len(uv), 2)
+    E = np.zeros((2, len(q), 3), np.float32)
+    E[0, :, 0] = np.arange(len(q))
+    cell = HitGrid(L, offset, E, E, q).lookup(tri, uv, np.zeros(len(uv), bool))[0][:, 0].astype(int)
+    truth = np.bincount(cell, albedo(scene, tri, uv)[:, 0], len(q)) / np.maximum(np.bincount(cell, minlength=len(q)), 1)
+    error = np.abs(rho - truth)[checker_cells].mean()
+    assert error < 0.6 * np.abs(at_centroid - truth)[checker_cells].mean()
