@@ -18,14 +18,15 @@ from .record_walls import beyond_wall
 from .sampling import orthonormal_basis
 
 
-def surface_coverage(caster, p_k: np.ndarray, n_k: np.ndarray, radius: float, wall: np.ndarray | None) -> float:
+def surface_coverage(caster, p_k: np.ndarray, n_k: np.ndarray, radius: float, wall: np.ndarray | None,
+                     lit_back: np.ndarray | None = None) -> float:
     """:func:`surface_coverages` for one record (p_k, n_k (3,), wall (S,) or None)."""
     return float(surface_coverages(caster, p_k[None], n_k[None], np.array([radius], np.float64),
-                                   None if wall is None else np.asarray(wall)[None])[0])
+                                   None if wall is None else np.asarray(wall)[None], lit_back)[0])
 
 
 def surface_coverages(caster, p_k: np.ndarray, n_k: np.ndarray, radius: np.ndarray,
-                      wall: np.ndarray | None) -> np.ndarray:
+                      wall: np.ndarray | None, lit_back: np.ndarray | None = None) -> np.ndarray:
     """(B,) share of the Epanechnikov kernel's mass over each record's disc that lies on its surface.
 
     p_k, n_k : (B, 3) records; radius : (B,) disc radii a R_k; wall : (B, S) float32 or None.
@@ -34,6 +35,11 @@ def surface_coverages(caster, p_k: np.ndarray, n_k: np.ndarray, radius: np.ndarr
     one batch; a point counts if it finds surface facing like n_k there and is not past a wall,
     weighted as a photon on that surface is (see below). Values >= COVERAGE_FLOOR (above 1 where
     the surface is tilted or curved: there is more of it than disc).
+
+    lit_back : (T,) bool, triangles photons reached on their back side (PhotonDensity.lit_back_faces).
+    A probe that meets such a triangle's back counts it as the side it sees: the wall is lit from
+    there (a flipped wall's photons and records all face that way). Other back faces are the inside
+    of a solid the probe started in, where no photon lands, and do not count.
     """
     B, m = len(p_k), PROBES
     u, phi = np.tile(_COVERAGE_U, B), np.tile(_COVERAGE_PHI, B)
@@ -47,6 +53,10 @@ def surface_coverages(caster, p_k: np.ndarray, n_k: np.ndarray, radius: np.ndarr
     cos = np.ones(len(rec))
     if present.any():
         cos[present] = np.einsum("ij,ij->i", caster.face_normals[hits.triangle[present]], n_r[present])
+        if lit_back is not None:
+            seen_back = present & (cos < 0)
+            seen_back[seen_back] = lit_back[hits.triangle[seen_back]]
+            cos[seen_back] = -cos[seen_back]
         present[present] = cos[present] >= SAME_SURFACE_COS
     if wall is not None:
         walled = np.flatnonzero(present & np.isfinite(wall).any(axis=1)[rec])

@@ -45,6 +45,7 @@ class PhotonDensity:
         self.last_hit = (photons.p + photons.wi * photons.d_prev[:, None]).astype(np.float32)
         self.is_indirect = photons.is_indirect
         self.queries = 0
+        self._lit_back = None
 
     def harmonic_mean_distances(self, p_k: np.ndarray, n_k: np.ndarray, count: int, R_max: float) -> np.ndarray:
         """(B,) float64 R_k for B records (p_k, n_k (B, 3)): Figure 3's harmonic mean; R_max where none fit.
@@ -74,6 +75,15 @@ class PhotonDensity:
         inverse = np.bincount(rows, weights=1.0 / d, minlength=B)
         np.divide(kept, inverse, out=R, where=kept > 0)
         return R
+
+    def lit_back_faces(self, face_normals: np.ndarray) -> np.ndarray:
+        """(T,) bool: triangles that photons reached on the side their face normal points away from
+        (a wall modelled with its normals flipped: light arrives on its back). Computed once."""
+        if getattr(self, "_lit_back", None) is None or len(self._lit_back) != len(face_normals):
+            triangle = self.photons.triangle.astype(np.int64)
+            back = np.einsum("ij,ij->i", self.n.astype(np.float64), np.take(face_normals, triangle, axis=0)) < 0
+            self._lit_back = np.bincount(triangle[back], minlength=len(face_normals)) > 0
+        return self._lit_back
 
     def photon_reach(self, p_k: np.ndarray, n_k: np.ndarray, count: int) -> np.ndarray:
         """(B,) float64 distance from each p_k (B, 3) to its ``count``-th nearest indirect photon on

@@ -344,7 +344,7 @@ def _create_records(density, picked, p_k, n_k, R_k, params: CacheParameters, cas
     est_caster = caster if not candidate_is_photon and params.record_visibility else None  # deviation: record-visibility
     coverage = None
     if caster is not None and params.kernel_coverage:  # deviation: surface-coverage, docs/DEVIATIONS.md
-        coverage = surface_coverages(caster, p_k, n_k, a * R_k, est_wall)
+        coverage = surface_coverages(caster, p_k, n_k, a * R_k, est_wall, density.lit_back_faces(caster.face_normals))
         stats.wall_rays += COVERAGE_RINGS * COVERAGE_ANGLES * B
     own = picked if candidate_is_photon and params.leave_one_out else None  # deviation: leave-one-out
     zone = density.records(p_k, n_k, R_k, a, est_wall, coverage, est_caster, own)

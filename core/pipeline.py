@@ -225,13 +225,14 @@ def cache_parameters(scene: Scene, rasters, settings: BakeSettings) -> CachePara
         texel_size = max(texel_size, float(np.sqrt(areas[target.triangles].sum() / covered)))
     R_max = settings.r_max_fraction * scene.extent
     R_min = min(settings.r_min_texels * texel_size, R_max)
-    # Preview's light maps are pass 2's E_k, so its kernel is normalised over the surface actually in
-    # the disc (deviation: surface-coverage). Final keeps the plain kernel: its virtual rays carry a
-    # +4 % bias that the plain kernel's -4 % at edges cancels (Final with the coverage kernel: 7.8 %
-    # Cornell indirect error against 6.4 %), so correcting one alone makes Final worse.
+    # Pass 2's E_k is normalised over the surface actually in the disc (deviation: surface-coverage):
+    # Preview's light maps are those E_k, and standard gathering's hits read them. Final with photon-path
+    # reuse keeps the plain kernel: its virtual rays carry a +4 % bias that the plain kernel's darkness
+    # at narrow surfaces cancels, so correcting one alone makes it worse.
     deviations = settings.deviations
+    coverage = deviations.surface_coverage and not (settings.refine and settings.reuse_photon_paths)
     return CacheParameters(a=settings.a, r_nearest=settings.r_nearest, R_min=max(R_min, R_MIN_FLOOR * scene.extent),
-                           R_max=R_max, kernel_coverage=deviations.surface_coverage and not settings.refine,
+                           R_max=R_max, kernel_coverage=coverage,
                            wall_sectors=deviations.wall_sectors, neighbour_clamp=deviations.neighbour_clamp,
                            record_visibility=deviations.record_visibility, leave_one_out=deviations.leave_one_out,
                            zone_photons=ZONE_PHOTONS if deviations.zone_photon_floor and not settings.refine else 0)

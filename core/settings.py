@@ -31,7 +31,8 @@ class Deviations:
     zone_photon_floor: bool = True
     """Preview: a record's zone holds at least ZONE_PHOTONS photons (R_k floored), however small R_min."""
     surface_coverage: bool = True
-    """Preview: E_k's kernel is normalised over the surface inside its disc (probe rays)."""
+    """Pass 2: E_k's kernel is normalised over the surface inside its disc (probe rays); Preview, and Final
+    with standard gathering (not with photon-path reuse, whose virtual rays are biased the other way)."""
     leave_one_out: bool = True
     """A record placed at a photon leaves that photon out of its own E_k (the photon it sits on is
     certain, not a sample of the density around it)."""
@@ -118,8 +119,12 @@ class BakeSettings:
     """Stratified hemisphere: theta rows (cosine-weighted, equal-weight cells)."""
     hemisphere_phi: int = 32
     """Stratified hemisphere: phi columns. theta x phi = 512 cells by default."""
-    reuse_photon_paths: bool = True
-    """Fill cells with virtual rays from photon paths (the paper); False = standard final gathering."""
+    reuse_photon_paths: bool = False
+    """Fill cells with virtual rays from photon paths (the paper, Figure 4); False = standard final
+    gathering, a real ray per cell, with the surface-coverage kernel at the hits' records. Off by
+    default: virtual rays are +4 % bright (Sponza), which only the plain kernel's darkness hid;
+    standard gathering with the coverage kernel is closer on every bench scene at about the same
+    cost (docs/DEVIATIONS.md, standard-gathering)."""
     gradients: bool = True
     """Interpolate with rotational and translational irradiance gradients."""
 

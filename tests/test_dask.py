@@ -79,7 +79,7 @@ def test_local_cluster_light_maps_equal_thread_pool_bit_for_bit(cluster, blend):
     for key in ("photons_stored", "photon_rays", "records", "shadow_rays", "refine_rays_cast", "rays_cast"):
         assert ours.get(key) == theirs.get(key), key
     names = [call.name for call in cluster.shipping.per_call[calls_before:]]
-    assert {"trace_photons.<locals>.run", "refine_records.<locals>.run", "shade_direct.<locals>.run"} <= set(names)
+    assert {"trace_photons.<locals>.run", "refine_records.<locals>.run"} <= set(names)
 
 
 def test_a_rebake_ships_no_array_again_and_tasks_carry_only_their_chunk(cluster):

@@ -12,6 +12,8 @@ from pdic.core.settings import Deviations, preset
 from scenes import lamp_box
 
 FINAL = preset("FINAL", photons=4000, max_bounces=3, threads=1, hemisphere_theta=6, hemisphere_phi=12)
+REUSE = replace(FINAL, reuse_photon_paths=True)
+"""Final with the paper's photon-path reuse, where the virtual-ray deviations act."""
 
 
 def _box():
@@ -31,17 +33,27 @@ def default():
     return _bake(FINAL)
 
 
-@pytest.mark.parametrize("switch, counter", [
-    ("texel_validity", "validity_rays"),
-    ("probe_rays", "refine_probe_rays"),
-    ("zone_visibility", "refine_visibility_rays"),
-    ("wall_sectors", "refine_wall_rays"),
-    ("adaptive_gathering", "refine_extra_gathers"),
+@pytest.fixture(scope="module")
+def reused():
+    return _bake(REUSE)
+
+
+@pytest.mark.parametrize("switch, counter, reuse", [
+    ("texel_validity", "validity_rays", False),
+    ("probe_rays", "refine_probe_rays", True),
+    ("zone_visibility", "refine_visibility_rays", True),
+    ("wall_sectors", "refine_wall_rays", False),
+    ("adaptive_gathering", "refine_extra_gathers", False),
 ])
-def test_a_deviation_switched_off_casts_none_of_its_rays(default, switch, counter):
-    assert default[1][counter] > 0
-    _, counters = _bake(FINAL, **{switch: False})
+def test_a_deviation_switched_off_casts_none_of_its_rays(default, reused, switch, counter, reuse):
+    assert (reused if reuse else default)[1][counter] > 0
+    _, counters = _bake(REUSE if reuse else FINAL, **{switch: False})
     assert counters[counter] == 0
+
+
+def test_standard_gathering_casts_no_virtual_ray_and_reuse_does(default, reused):
+    assert default[1]["refine_virtual_rays"] == default[1]["refine_probe_rays"] == 0
+    assert reused[1]["refine_virtual_rays"] > 0 and reused[1]["refine_probe_rays"] > 0
 
 
 def test_without_wall_sectors_pass_2_casts_no_wall_rays():
@@ -52,18 +64,21 @@ def test_without_wall_sectors_pass_2_casts_no_wall_rays():
 
 def test_without_thinning_every_zone_photon_lends_a_virtual_ray():
     # 8 cells and whole zones (no probe radius): zones hold more than 16 photons
-    coarse = replace(FINAL, photons=20_000, hemisphere_theta=2, hemisphere_phi=4)
+    coarse = replace(REUSE, photons=20_000, hemisphere_theta=2, hemisphere_phi=4)
     _, thinned = _bake(coarse, probe_rays=False)
     _, every = _bake(coarse, probe_rays=False, virtual_thinning=False)
     assert every["refine_virtual_rays"] > thinned["refine_virtual_rays"]
 
 
-@pytest.mark.parametrize("switch", ["harmonic_cell_radiance", "gradient_limiting", "neighbour_clamp",
-                                    "nearest_photon_fallback", "fine_zones", "gap_fill", "leave_one_out"])
-def test_switching_a_deviation_off_changes_the_bake_and_keeps_it_finite(default, switch):
-    result, _ = _bake(FINAL, **{switch: False})
-    changed = any(not np.array_equal(result.lightmaps[n], default[0].lightmaps[n]) for n in result.lightmaps)
-    cache, before = result.cache, default[0].cache
+@pytest.mark.parametrize("switch, reuse", [("harmonic_cell_radiance", True), ("gradient_limiting", False),
+                                           ("neighbour_clamp", False), ("nearest_photon_fallback", False),
+                                           ("fine_zones", False), ("gap_fill", False), ("leave_one_out", False),
+                                           ("surface_coverage", False)])
+def test_switching_a_deviation_off_changes_the_bake_and_keeps_it_finite(default, reused, switch, reuse):
+    result, _ = _bake(REUSE if reuse else FINAL, **{switch: False})
+    base = reused if reuse else default
+    changed = any(not np.array_equal(result.lightmaps[n], base[0].lightmaps[n]) for n in result.lightmaps)
+    cache, before = result.cache, base[0].cache
     records_changed = len(cache) != len(before) or not np.array_equal(cache.R, before.R)
     assert changed or records_changed
 
@@ -90,16 +105,16 @@ def test_a_cached_bake_is_not_reused_for_other_deviations(tmp_path, default):
         np.testing.assert_array_equal(switched.lightmaps[name], alone.lightmaps[name])
 
 
-def test_the_virtual_cell_minimum_sends_real_rays_into_cells_one_photon_reached(default):
-    _, on = _bake(FINAL, virtual_cell_minimum=True)
-    off = default[1]
+def test_the_virtual_cell_minimum_sends_real_rays_into_cells_one_photon_reached(reused):
+    _, on = _bake(REUSE, virtual_cell_minimum=True)
+    off = reused[1]
     assert on["refine_cells_virtual"] < off["refine_cells_virtual"]
     assert on["refine_rays_cast"] > off["refine_rays_cast"]
 
 
-def test_path_visibility_casts_one_occlusion_ray_per_virtual_ray_and_none_when_off(default):
-    assert default[1]["refine_path_visibility_rays"] == 0
-    _, on = _bake(FINAL, path_visibility=True)
+def test_path_visibility_casts_one_occlusion_ray_per_virtual_ray_and_none_when_off(reused):
+    assert reused[1]["refine_path_visibility_rays"] == 0
+    _, on = _bake(REUSE, path_visibility=True)
     assert 0 < on["refine_path_visibility_rays"] <= on["refine_rays_cast"]
     assert on["refine_virtual_rays"] <= on["refine_path_visibility_rays"]
 

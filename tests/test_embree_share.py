@@ -14,7 +14,8 @@ from pdic.core.settings import preset
 
 from scenes import lamp_box
 
-RAY_STAGES = ("direct", "photons", "cache", "photon_direct", "refine", "interpolate")
+RAY_STAGES = ("direct", "photons", "cache", "refine", "interpolate")
+"""Stages that cast rays at Final's defaults (photon_direct only with photon-path reuse)."""
 
 
 def _box():
@@ -31,6 +32,7 @@ def test_stats_report_embree_share_of_every_ray_casting_stage_between_0_and_1(th
         assert 0.0 < share <= 1.0, (stage, share)
         assert 0.0 < c[f"embree_seconds_{stage}"] <= seconds[stage] * threads + 1e-3
     assert "embree_share_rasterise" not in c  # rasterising casts no ray
+    assert "embree_share_photon_direct" not in c  # only virtual rays read the photons' direct light
 
 
 def test_a_bake_that_casts_no_ray_reports_no_embree_time():

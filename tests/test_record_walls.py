@@ -202,3 +202,28 @@ def test_a_gather_hit_whose_nearest_photon_is_round_a_corner_takes_the_next_one_
                                         np.array([[0.0, 0, 1]]))
     assert np.allclose(E[0], 9.0)
     assert rays == 1 + 1  # the hidden nearest is not tested twice
+
+
+def test_kernel_coverage_counts_a_flipped_floor_that_photons_reach_on_its_back():
+    # The generated cathedral's south wall and apse have their normals pointing out of the nave:
+    # photons, and the records placed at them, arrive on the faces' backs. A probe that counted
+    # only faces agreeing with n_k measured the 0.05 floor there and made those records 20x bright
+    # (Preview 170 % off on the cathedral). Photons on a triangle's back mark it as lit from there.
+    lamp = PointLight("p", np.array([0, 0, 1.0]), np.full(3, 100.0))
+    up, p_k, R_k, a = np.array([0.0, 0, 1]), np.zeros(3), 0.5, 0.5
+    floor = quad([-2, -2, 0], [4, 0, 0], [0, 4, 0])
+    flipped = floor[:, ::-1].copy()  # the same floor, its normal pointing down
+    true_E = 100.0 / (4 * np.pi)
+    for tris, back_lit in ((floor, False), (flipped, True)):
+        caster = RayCaster(tris)
+        traced, _ = trace_photons(lit(tris, lamp), caster, 20_000, 1, seed=4)
+        density = PhotonDensity(traced)
+        density.is_indirect = np.ones(len(traced), bool)
+        lit_back = density.lit_back_faces(caster.face_normals)
+        assert lit_back.tolist() == [back_lit] * 2
+        coverage = surface_coverage(caster, p_k, up, a * R_k, None, lit_back)
+        assert abs(coverage - 1.0) < 0.05
+        _, _, E_k, _ = density.record(p_k, up, R_k, a, None, coverage)
+        assert abs(E_k[0] - true_E) < 0.25 * true_E
+    # Without the photons' word a back face is the inside of a solid: not surface.
+    assert surface_coverage(RayCaster(flipped), p_k, up, a * R_k, None) < 0.1
