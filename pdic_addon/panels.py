@@ -102,8 +102,8 @@ def stats_rows(stats: dict) -> list[tuple[str, str]]:
         rows.append(("Records incl. holes", f"{_count(c['records_total'])} ({holes} holes)"))
     if "rays_cast" in c:
         rows.append(("Rays cast", _count(c["rays_cast"])))
-    if c.get("refine_cells"):
-        saved = c.get("refine_virtual_rays", 0)
+    if c.get("refine_cells") and c.get("refine_virtual_rays"):  # photon-path reuse on (not the default)
+        saved = c["refine_virtual_rays"]
         share = c.get("refine_cells_virtual", 0) / c["refine_cells"]
         rows.append(("Rays saved (photon paths)", f"{_count(saved)} ({100 * share:.0f}% of cells)"))
     if "texels" in stats:

@@ -366,8 +366,9 @@ def test_stats_panel_lists_pass_times_photons_records_and_rays(addon, blender, t
     assert blender.ops.pdic.bake() == {"FINISHED"}
     labels = draw_panel(panels.VIEW3D_PT_pdic_stats, blender.context).labels()
     for expected in ("Pass 1: photons", "Pass 2: cache", "Pass 3: refine", "Total", "Photons emitted / stored",
-                     "Records (pass 2)", "Rays cast", "Rays saved (photon paths)"):
+                     "Records (pass 2)", "Rays cast"):
         assert expected in labels
+    assert "Rays saved (photon paths)" not in labels  # standard gathering (the default) reuses no path
 
 
 def test_stats_rows_sum_stages_without_double_counting_and_format_counters():
