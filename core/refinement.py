@@ -150,16 +150,18 @@ def refine_records(scene, caster, sources: GatherSources, cache: IrradianceCache
         counters["refine_extra_gathers"] += len(noisy)
     refined = cache.take(slice(None))
     refined.E, refined.grad_r, refined.grad_t, R = gathers.means()
-    refined.R = np.clip(R, params.R_min, params.R_max)
     refined.refined[:] = True
-    if params.neighbour_clamp:  # deviation: neighbour-clamp, docs/DEVIATIONS.md
-        refined.R = neighbour_clamp(refined.p, refined.R, executor.workers)
-    # The zones changed size: find their walls again (one ray per sector and record).
-    if params.wall_sectors:  # deviation: wall-sectors, docs/DEVIATIONS.md
-        refined.wall = wall_distances(caster, refined.p, refined.n, params.a * refined.R)
-    else:
-        refined.wall = open_walls(K)
-    counters["refine_wall_rays"] = refined.wall.size if params.wall_sectors else 0
+    counters["refine_wall_rays"] = 0
+    if settings.deviations.gathered_radius:  # deviation: gathered-radius, docs/DEVIATIONS.md
+        refined.R = np.clip(R, params.R_min, params.R_max)
+        if params.neighbour_clamp:  # deviation: neighbour-clamp, docs/DEVIATIONS.md
+            refined.R = neighbour_clamp(refined.p, refined.R, executor.workers)
+        # The zones changed size: find their walls again (one ray per sector and record).
+        if params.wall_sectors:  # deviation: wall-sectors, docs/DEVIATIONS.md
+            refined.wall = wall_distances(caster, refined.p, refined.n, params.a * refined.R)
+            counters["refine_wall_rays"] = refined.wall.size
+        else:
+            refined.wall = open_walls(K)
     if settings.deviations.gradient_limiting:  # deviation: gradient-limiting, docs/DEVIATIONS.md
         refined.grad_t, refined.grad_r = limit_gradients(refined.E, refined.grad_t, refined.grad_r,
                                                          params.a * refined.R)

@@ -50,6 +50,9 @@ class Deviations:
     virtual_cell_minimum: bool = False
     """Pass 3: a cell fewer than VIRTUAL_MIN_PER_CELL virtual rays reached casts a real ray instead (off by
     default: it exposes pass 2's dark hit shading on Sponza, docs/DEVIATIONS.md)."""
+    gathered_radius: bool = True
+    """Pass 3: R_k becomes the harmonic mean of the record's gathering-ray distances (clamped by its
+    neighbours, walls found again); off, R_k stays Figure 3's photon estimate from pass 2."""
     adaptive_gathering: bool = True
     """Pass 3: a record whose E_k's standard error (from its cells) exceeds GATHER_ERROR gathers again,
     up to GATHER_ROUNDS times, and averages (docs/DEVIATIONS.md)."""

@@ -44,6 +44,7 @@ def reused():
     ("zone_visibility", "refine_visibility_rays", True),
     ("wall_sectors", "refine_wall_rays", False),
     ("adaptive_gathering", "refine_extra_gathers", False),
+    ("gathered_radius", "refine_wall_rays", False),
 ])
 def test_a_deviation_switched_off_casts_none_of_its_rays(default, reused, switch, counter, reuse):
     assert (reused if reuse else default)[1][counter] > 0
@@ -73,7 +74,7 @@ def test_without_thinning_every_zone_photon_lends_a_virtual_ray():
 @pytest.mark.parametrize("switch, reuse", [("harmonic_cell_radiance", True), ("gradient_limiting", False),
                                            ("neighbour_clamp", False), ("nearest_photon_fallback", False),
                                            ("fine_zones", False), ("gap_fill", False), ("leave_one_out", False),
-                                           ("surface_coverage", False)])
+                                           ("surface_coverage", False), ("gathered_radius", False)])
 def test_switching_a_deviation_off_changes_the_bake_and_keeps_it_finite(default, reused, switch, reuse):
     result, _ = _bake(REUSE if reuse else FINAL, **{switch: False})
     base = reused if reuse else default
