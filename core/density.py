@@ -78,8 +78,9 @@ class PhotonDensity:
 
     def lit_back_faces(self, face_normals: np.ndarray) -> np.ndarray:
         """(T,) bool: triangles that photons reached on the side their face normal points away from
-        (a wall modelled with its normals flipped: light arrives on its back). Computed once."""
-        if getattr(self, "_lit_back", None) is None or len(self._lit_back) != len(face_normals):
+        (a wall modelled with its normals flipped: light arrives on its back). Computed once: the photons
+        hit one scene, whose ``face_normals`` every call passes."""
+        if self._lit_back is None:
             triangle = self.photons.triangle.astype(np.int64)
             back = np.einsum("ij,ij->i", self.n.astype(np.float64), np.take(face_normals, triangle, axis=0)) < 0
             self._lit_back = np.bincount(triangle[back], minlength=len(face_normals)) > 0

@@ -92,7 +92,8 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
     (w_sum = 0) E_indirect comes from :func:`~core.photon_fallback.nearest_photon_irradiance`
     (deviation: nearest-photon-fallback): on Sponza a third of the hits are such holes. With
     ``sources.hit_grid`` (deviation: hit-grid) a hit that sees its grid cell's centroid reads
-    E_direct + E_indirect from the cell (one occlusion ray); the rest are shaded as above.
+    E_direct + E_indirect and the mean albedo from the cell (one occlusion ray); the rest are shaded
+    as above, with their own albedo.
     """
     n_face = np.take(caster.face_normals, triangle, axis=0)
     back = np.einsum("ij,ij->i", n_face, direction) > 0  # the ray reached the face's back side
