@@ -214,21 +214,27 @@ def noise_corrected_error(images: dict, covered: dict, pair) -> float:
 
 
 def interior_texels(scene, texel_samples: int = 2) -> dict:
-    """Target name -> (H, W) bool: texels whose samples all lie on the mesh and whose 8 neighbours
-    are covered too.
+    """Target name -> (H, W) bool: texels whose samples all lie on the mesh, on no coincident face,
+    and whose 8 neighbours are covered too.
 
     The others straddle a chart's edge, where the two bakers define a texel differently: Cycles
     jitters a texel's sample over its footprint and past the triangle's edge (on the occluded
     building into the wall standing on the floor slab: a floor texel at a wall's foot averages in
     points inside the wall), PDIC averages its samples on the triangles, inside ones left out
     (docs/DEVIATIONS.md, texel-validity). At such texels of Sponza's worst 8x8 blocks
-    bench/path_referee.py, which traces paths from PDIC's samples, sided with PDIC (bench/README.md)."""
+    bench/path_referee.py, which traces paths from PDIC's samples, sided with PDIC (bench/README.md).
+    Texels with a sample on a face another triangle overlaps in place bake black in Cycles
+    (bench/coincident.py)."""
+    from pdic.bench.coincident import coincident_samples
+
     out = {}
     for target in scene.targets:
         points, rasters = texel_stage.lift_texels(replace(scene, targets=(target,)), texel_samples)
         H, W = rasters[0].coverage.shape
         count = np.bincount(points.texel, minlength=H * W).reshape(H, W)
         full = count == texel_samples ** 2
+        on_coincident = coincident_samples(scene.geometry.positions, points.p, points.n_geometric, points.triangle)
+        full &= np.bincount(points.texel[on_coincident], minlength=H * W).reshape(H, W) == 0
         covered = np.pad(count > 0, 1)
         for dy in (-1, 0, 1):
             for dx in (-1, 0, 1):

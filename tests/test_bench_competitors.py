@@ -110,3 +110,22 @@ def test_interior_texels_leave_out_a_charts_border_ring():
     inner = interior_texels(scene)["plane"]
     assert inner.shape == (16, 16)
     assert inner.sum() == 14 * 14 and inner[1:15, 1:15].all()
+
+
+def test_interior_texels_leave_out_texels_on_a_face_duplicated_in_place():
+    """Cycles bakes a face another triangle overlaps in place black (bench/coincident.py): a copy of
+    the plane's left half, facing either way, takes those texels out of the comparison; a copy 5 cm
+    above, a real occluder to both bakers, does not."""
+    from pdic.bench.run import interior_texels
+    from scenes import quad, quad_scene
+
+    plane = quad([0, 0, 0], [1, 0, 0], [0, 1, 0])
+    for copy, taken in ((quad([0, 0, 0], [0.5, 0, 0], [0, 1, 0]), True),  # same facing, in place
+                        (quad([0, 0, 0], [0, 1, 0], [0.5, 0, 0]), True),  # facing the other way
+                        (quad([0, 0, 0.05], [0.5, 0, 0], [0, 1, 0]), False)):
+        inner = interior_texels(quad_scene([plane], {"plane": (0, 16)}, (), extra=copy))["plane"]
+        assert inner[1:15, 8:15].all()  # the right half, clear of the copy
+        if taken:
+            assert not inner[:, :8].any() and inner.sum() == 14 * 7
+        else:
+            assert inner.sum() == 14 * 14
