@@ -153,6 +153,11 @@ OFF_PLANE = 4.0
 """A record or photon farther than this many ray epsilons from a point's tangent plane counts only
 if it sees the point (RayCaster.hidden_off_plane); nearer, the two are taken as coplanar and cast
 no ray. A few epsilons: above the float32 rounding of surface points, far below a 1 cm gap."""
+RECORD_STEP_BEHIND = 0.1
+"""A record farther than this fraction of its zone radius a R_k *behind* a texel sample's tangent
+plane counts only if it sees the sample: a step down (a column base's lower tier, the floor past a
+plinth) lies behind the upper surface's plane, within its zones, out of its sight. Nearer, it is
+the plane's own curvature (a record a R_k along a sphere of radius 5 a R_k lies 0.1 a R_k behind)."""
 NEAREST_RECORDS = 8
 """Records the last-resort fallback tries, nearest first, for one that sees the texel sample
 (a box's inside records are the nearest to the floor under it; 8 reach past its bottom's)."""

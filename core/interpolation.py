@@ -12,6 +12,7 @@ from __future__ import annotations
 import copy
 from dataclasses import dataclass, field
 import numpy as np
+from .constants import RECORD_STEP_BEHIND
 from .executor import TEXEL_CHUNK, slices
 from .irradiance_cache import IrradianceCache
 from .record_walls import beyond_wall, wall_clearance
@@ -82,6 +83,11 @@ class CacheLookup:
             ok[near_wall] = ~beyond_wall(c.wall[rec[near_wall]], delta[near_wall], n_k[near_wall])
             if self.caster is not None:  # a surface between point and record hides it (a closed box's inside)
                 ok[ok] = ~self.caster.hidden_off_plane(p_r[ok], n_r[ok], p_k[ok], n_k[ok])
+                # ... and one behind it past the plane's curvature (a step down: see RECORD_STEP_BEHIND).
+                step = RECORD_STEP_BEHIND * self.a * c.R[rec]
+                behind = np.flatnonzero(ok & (np.einsum("ij,ij->i", delta, n_r) > step))
+                if len(behind):
+                    ok[behind] = self.caster.sides_visible(p_r[behind], n_r[behind], p_k[behind], n_k[behind])
             if self.margin > 0:  # deviation: gap-fill: past the record's own zone, walls are unknown
                 past = np.flatnonzero(ok & (d2 >= (self.a * c.R[rec]) ** 2))
                 if len(past):
