@@ -1,22 +1,23 @@
-"""Texel samples on coincident faces: another triangle passes through the sample's point.
+"""Texel samples on duplicated faces: another triangle facing the same way passes through the sample.
 
-Where two triangles overlap in one plane (a mesh's duplicated faces, or two parts glued face to
-face), Cycles' bake is not a reference: its rays leave a surface point with no offset, skip only
-their own triangle and hit the coincident one at distance ~0, so the texel bakes black. On Sponza
-(16 texels/m) 235 interior texels bake to exactly 0 in both reference seeds where PDIC has light,
-on vault and arch faces duplicated in place (mesh triangles 24315-24316 over 24400, ...); there the
-path referee (bench/path_referee.py) traces 1.37 and 1.36, PDIC 1.37 and 1.36. PDIC's rays leave
-``RayCaster.epsilon`` above the surface, past such a duplicate, which is what a light map wants: a
-renderer shows either face with the light of the room it faces. Comparisons against Cycles leave
-out the texels with a sample on such a face (``bench.run.interior_texels``), and count them:
-Sponza 2,750 of 889,291 interior texels (PDIC Final's indirect error per texel / 8x8 blocks 8.37 /
-8.61 % -> 7.49 / 6.46 %), the cathedral 6,803 of 81,374 (its stacked mouldings and stairs; 23.55 /
-22.17 % -> 17.90 / 16.86 %, mean 1.041 -> 1.029 of Cycles), the Cornell box and the occluded
-building none.
+Where two triangles overlap in one plane facing the same way (a mesh's faces duplicated in place),
+Cycles' bake is not a reference: its rays leave a surface point with no offset, skip only their own
+triangle and hit the duplicate at distance ~0, so the texel bakes black. On Sponza (16 texels/m)
+vault and arch faces are duplicated so (mesh triangles 24315-24316 lie over 24400): both reference
+seeds bake them exactly 0, a re-bake at 8 spp too, where the path referee (bench/path_referee.py)
+traces 1.37 and 1.36 and PDIC 1.37 and 1.36. PDIC's rays leave ``RayCaster.epsilon`` above the
+surface, past the duplicate, which is what a light map wants: a renderer shows either face with the
+light of the room it faces. Comparisons against Cycles leave out the texels with a sample on such a
+face (``bench.run.interior_texels``), and count them: Sponza 204 of its 889,291 interior texels,
+which held 44 % of PDIC Final's squared 8x8-block indirect error (per texel / 8x8: 8.31 / 8.46 ->
+7.64 / 6.36 %), the generated cathedral 2,455 of
+81,374 (interior 19.01 / 17.61 -> 16.87 / 16.68 % with the record-step rule), the occluded building 35 (no change), the Cornell box none. Faces glued
+back to back (a stair on a stair, a wall on its slab) face into each other's solids; both bakers find
+them dark, and they stay in.
 
 The test casts, from COINCIDENT_EPSILONS epsilons above each sample, a ray back through it over
 twice that distance against the triangles of the other half of a random split of the mesh: a hit
-is a triangle (either facing) within that distance of the plane at the sample. A coincident pair
+is a triangle within that distance of the plane at the sample; it counts if it faces the same side. A coincident pair
 falls in different halves with probability 1/2 per split; SPLITS splits miss it with 2^-SPLITS.
 """
 from __future__ import annotations
@@ -35,7 +36,8 @@ SPLITS = 8
 def coincident_samples(positions: np.ndarray, p: np.ndarray, n: np.ndarray, triangle: np.ndarray,
                        seed: int = 0) -> np.ndarray:
     """(m,) bool: samples p (m, 3) on ``triangle`` (m,) facing their face normal n (m, 3) through
-    which another triangle of ``positions`` (T, 3, 3) passes (within COINCIDENT_EPSILONS epsilons)."""
+    which another triangle of ``positions`` (T, 3, 3) facing the same side passes (within
+    COINCIDENT_EPSILONS epsilons)."""
     from pdic.core.rays import RayCaster
 
     p, n = np.asarray(p, np.float64), np.asarray(n, np.float64)
@@ -57,5 +59,9 @@ def coincident_samples(positions: np.ndarray, p: np.ndarray, n: np.ndarray, tria
             # Off the other triangle's edges: a sample on an edge two coplanar neighbours share is
             # no overlap.
             inside = hits.hit & (np.minimum(np.minimum(u, v), 1.0 - u - v) > EDGE_MARGIN)
+            # Facing the same way: a duplicate. Two faces glued back to back (a stair on a stair, a
+            # wall on its slab) face into each other's solids, and both bakers find them dark.
+            facing = np.einsum("ij,ij->i", caster.face_normals[np.maximum(hits.triangle, 0)], n[own]) > 0
+            inside &= facing
             out[own[inside]] = True
     return out
