@@ -94,7 +94,14 @@ class CacheLookup:
                     ok[past] = self.caster is not None and self.caster.sides_visible(
                         p_r[past], n_r[past], p_k[past], n_k[past])
             rows, rec, w = rows[ok], rec[ok], w[ok]
-            E_rec = record_estimate(c.E[rec], p_r[ok], n_r[ok], p_k[ok], n_k[ok],
+            p_at = p_r[ok]
+            if self.margin > 0:
+                # deviation: gap-fill: a gradient holds over its own zone; past it E_k stays as at its edge.
+                reach = p_at - p_k[ok]
+                d = np.sqrt(np.einsum("ij,ij->i", reach, reach))
+                zone = self.a * c.R[rec]
+                p_at = p_k[ok] + reach * np.minimum(1.0, zone / np.maximum(d, 1e-300))[:, None]
+            E_rec = record_estimate(c.E[rec], p_at, n_r[ok], p_k[ok], n_k[ok],
                                     c.grad_r[rec] if self.use_gradients else None,
                                     c.grad_t[rec] if self.use_gradients else None)
             E_rec = np.maximum(E_rec, 0.0)

@@ -8,6 +8,7 @@ Cycles' 1.75). Records farther behind the plane than RECORD_STEP_BEHIND a R_k mu
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from pdic.core.constants import RECORD_STEP_BEHIND
 from pdic.core.interpolation import CacheLookup
@@ -57,3 +58,19 @@ def test_a_record_slightly_behind_the_plane_casts_no_ray():
     record, sample = (1.05, 0.5, 0.0), (0.95, 0.5, 0.5 * RECORD_STEP_BEHIND * A)
     assert _weight(caster, record, sample) > 0
     assert caster.rays_cast == 0
+
+
+def test_a_widened_zone_holds_the_gradient_at_its_own_edge():
+    """Gap-fill widens zones by a margin; past a record's own zone a R_k its translational gradient
+    is not extrapolated: the estimate there is E_k at the zone's edge (on the occluded building a
+    riser's texel 63 cm from its only record read 3.77 against the referee's 2.56 before)."""
+    cache = _cache((0.0, 0.5, 0.0))
+    cache.grad_t = np.zeros((1, 3, 3))
+    cache.grad_t[0, :, 0] = 5.0  # +5 W/m^2 per metre along x: 7 W/m^2 at the zone's edge x = 0.4
+    caster = _step(upper=False)
+    inside = CacheLookup(cache, A, True, caster=caster).irradiance(np.array([[0.3, 0.5, 0.0]]), UP)[0]
+    assert inside[0] == pytest.approx(5.0 + 5.0 * 0.3)  # within the zone the gradient applies
+    widened = CacheLookup(cache, A, True, caster=caster, margin=0.3)
+    E, w = widened.irradiance(np.array([[0.6, 0.5, 0.0]]), UP)
+    assert w[0] > 0
+    assert E[0] == pytest.approx(np.full(3, 5.0 + 5.0 * A))  # not 5 + 5 x 0.6
