@@ -214,8 +214,8 @@ def noise_corrected_error(images: dict, covered: dict, pair) -> float:
 
 
 def interior_texels(scene, texel_samples: int = 2) -> dict:
-    """Target name -> (H, W) bool: texels whose samples all lie on the mesh, on no coincident face,
-    and whose 8 neighbours are covered too.
+    """Target name -> (H, W) bool: texels whose samples all lie on the mesh, on no face duplicated in
+    place, and whose 8 neighbours are covered too.
 
     The others straddle a chart's edge, where the two bakers define a texel differently: Cycles
     jitters a texel's sample over its footprint and past the triangle's edge (on the occluded
@@ -223,8 +223,8 @@ def interior_texels(scene, texel_samples: int = 2) -> dict:
     points inside the wall), PDIC averages its samples on the triangles, inside ones left out
     (docs/DEVIATIONS.md, texel-validity). At such texels of Sponza's worst 8x8 blocks
     bench/path_referee.py, which traces paths from PDIC's samples, sided with PDIC (bench/README.md).
-    Texels with a sample on a face another triangle overlaps in place bake black in Cycles
-    (bench/coincident.py)."""
+    Texels with a sample on a face another triangle duplicates in place (same plane, same facing)
+    bake black in Cycles (bench/coincident.py)."""
     from pdic.bench.coincident import coincident_samples
 
     out = {}
