@@ -79,17 +79,17 @@ class CacheLookup:
             ok = accepted(w, self.a, p_r, n_r, p_k, n_k, R_k)
             delta = p_r - p_k
             d2 = np.einsum("ij,ij->i", delta, delta)
+            own_zone = self.a * c.R[rec]  # the record's zone before any gap-fill margin
             near_wall = ok & (d2 >= self.clearance[rec] ** 2)
             ok[near_wall] = ~beyond_wall(c.wall[rec[near_wall]], delta[near_wall], n_k[near_wall])
             if self.caster is not None:  # a surface between point and record hides it (a closed box's inside)
                 ok[ok] = ~self.caster.hidden_off_plane(p_r[ok], n_r[ok], p_k[ok], n_k[ok])
                 # ... and one behind it past the plane's curvature (a step down: see RECORD_STEP_BEHIND).
-                step = RECORD_STEP_BEHIND * self.a * c.R[rec]
-                behind = np.flatnonzero(ok & (np.einsum("ij,ij->i", delta, n_r) > step))
+                behind = np.flatnonzero(ok & (np.einsum("ij,ij->i", delta, n_r) > RECORD_STEP_BEHIND * own_zone))
                 if len(behind):
                     ok[behind] = self.caster.sides_visible(p_r[behind], n_r[behind], p_k[behind], n_k[behind])
             if self.margin > 0:  # deviation: gap-fill: past the record's own zone, walls are unknown
-                past = np.flatnonzero(ok & (d2 >= (self.a * c.R[rec]) ** 2))
+                past = np.flatnonzero(ok & (d2 >= own_zone ** 2))
                 if len(past):
                     ok[past] = self.caster is not None and self.caster.sides_visible(
                         p_r[past], n_r[past], p_k[past], n_k[past])
@@ -97,10 +97,8 @@ class CacheLookup:
             p_at = p_r[ok]
             if self.margin > 0:
                 # deviation: gap-fill: a gradient holds over its own zone; past it E_k stays as at its edge.
-                reach = p_at - p_k[ok]
-                d = np.sqrt(np.einsum("ij,ij->i", reach, reach))
-                zone = self.a * c.R[rec]
-                p_at = p_k[ok] + reach * np.minimum(1.0, zone / np.maximum(d, 1e-300))[:, None]
+                scale = np.minimum(1.0, own_zone[ok] / np.maximum(np.sqrt(d2[ok]), 1e-300))
+                p_at = p_k[ok] + delta[ok] * scale[:, None]
             E_rec = record_estimate(c.E[rec], p_at, n_r[ok], p_k[ok], n_k[ok],
                                     c.grad_r[rec] if self.use_gradients else None,
                                     c.grad_t[rec] if self.use_gradients else None)
