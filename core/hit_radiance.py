@@ -40,7 +40,9 @@ class HitGrid:
         to [0] and the other [1]; E_direct : (2, V, 3) float32 its direct part (a later grid over the
         same cells reuses it); centroid : (V, 3) float64 the cells' centroids (a hit's cell is found
         per hit, its centroid read); albedo : (V, 3) float32 the cells' mean albedo, or None (hits then
-        take their own). Memory: 84 bytes per cell; V <= HIT_GRID_MAX_CELLS.
+        take their own); fallback : (2, V) int32 the nearest-photon fallback's pick at each centroid and
+        side (:func:`~core.photon_fallback.nearest_photon_seen`, NOT_ASKED where a record accepted it),
+        which a later grid over the same cells reuses. Memory: 92 bytes per cell; V <= HIT_GRID_MAX_CELLS.
     """
 
     side: np.ndarray
@@ -49,6 +51,7 @@ class HitGrid:
     E_direct: np.ndarray
     centroid: np.ndarray
     albedo: np.ndarray | None = None
+    fallback: np.ndarray | None = None
 
     def lookup(self, triangle: np.ndarray, barycentric: np.ndarray, back: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -151,12 +154,14 @@ def build_hit_grid(scene, caster, indirect_at, R_min: float, hits: int, seed: in
                    direct_from: HitGrid | None = None) -> tuple[HitGrid, dict]:
     """The grid over ``scene``'s triangles and counters (cells, shadow rays, fallback rays).
 
-    indirect_at : callable (q (m, 3), n (m, 3)) -> (E_indirect on the side n faces (m, 3), on the
-        other (m, 3), rays): what a hit would read there.
+    indirect_at : callable (q (m, 3), n (m, 3), known (2, m) or None) -> (E_indirect on the side n faces
+        (m, 3), on the other (m, 3), rays, fallback picks (2, m)): what a hit would read there, reusing
+        an earlier grid's fallback picks ``known`` (:func:`~core.real_rays.indirect_on_both_sides`).
     hits : about how many hits will read the grid; it gets at most HIT_GRID_CELLS_PER_HIT of that
         in cells (both sides counted), so it costs a fraction of the hits it replaces.
     stream : the random stream of the centroids' shadow rays (core/constants.py).
-    direct_from : an earlier grid of this scene; its direct light is reused if its cells are the same.
+    direct_from : an earlier grid of this scene; its direct light and fallback picks are reused if its
+        cells are the same.
     """
     positions = scene.geometry.positions
     budget = int(min(HIT_GRID_MAX_CELLS, HIT_GRID_CELLS_PER_HIT * hits / 2))
@@ -174,10 +179,13 @@ def build_hit_grid(scene, caster, indirect_at, R_min: float, hits: int, seed: in
                                                            [*np.atleast_1d(stream).tolist(), side], executor,
                                                            progress)
             counters["hit_grid_shadow_rays"] += direct_counters["shadow_rays"]
+    known = direct_from.fallback if reuse else None
     # Both sides in one pass: a centroid's nearest photons are the same on either side.
-    parts = executor.map_chunks(lambda index, s: indirect_at(q[s], normal[s]), slices(len(q), TEXEL_CHUNK), progress)
+    parts = executor.map_chunks(lambda index, s: indirect_at(q[s], normal[s], None if known is None else known[:, s]),
+                                slices(len(q), TEXEL_CHUNK), progress)
     for side in (0, 1):
         E_indirect = np.concatenate([part[side] for part in parts]) if parts else np.zeros((0, 3))
         E[side] = E_direct[side] + E_indirect
     counters["hit_grid_fallback_rays"] += sum(part[2] for part in parts)
-    return HitGrid(L, offset, E, E_direct, q, albedo), counters
+    fallback = np.concatenate([part[3] for part in parts], axis=1).astype(np.int32) if parts else None
+    return HitGrid(L, offset, E, E_direct, q, albedo, fallback), counters

@@ -48,35 +48,60 @@ class NearestPhotons:
         return table[rows]
 
 
+NOT_ASKED = -2
+"""A fallback pick no one asked for yet (-1: asked, no photon on that side is seen; >= 0: the photon)."""
+
+
 def nearest_photon_irradiance(caster, density: PhotonDensity, lighting: PhotonLighting, q: np.ndarray,
                               n: np.ndarray, neighbours: NearestPhotons | None = None,
                               rows: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """Pass 2's indirect irradiance of the nearest photon on the side ``n`` faces, if the hit sees it.
 
-    One visibility ray (both ends lifted as in :mod:`core.zone_visibility`) keeps a photon
-    behind a thin wall from lending its light (tests/test_stability.py).
-    q, n : (h, 3) hit points and unit normals facing the ray. Returns (E (h, 3) float64,
-    rays cast); E is 0 where none of the HOLE_NEIGHBOURS nearest photons is on that side and seen.
-    neighbours, rows : the kd-tree answers to reuse and which of its points q are (h,); by default
-    the points' own.
+    q, n : (h, 3) hit points and unit normals facing the ray. Returns (E (h, 3) float64, rays
+    cast); E is 0 where none of the HOLE_NEIGHBOURS nearest photons is on that side and seen.
+    neighbours, rows : as :func:`nearest_photon_seen`.
     """
-    E = np.zeros((len(q), 3))
+    pick, rays = nearest_photon_seen(caster, density, q, n, neighbours, rows)
+    return photon_irradiance(lighting, pick), rays
+
+
+def photon_irradiance(lighting: PhotonLighting, pick: np.ndarray) -> np.ndarray:
+    """(h, 3) float64 pass 2's indirect irradiance of photons ``pick`` (h,), 0 where pick < 0."""
+    E = np.zeros((len(pick), 3))
+    some = np.flatnonzero(pick >= 0)
+    E[some] = lighting.E_indirect(pick[some])
+    return E
+
+
+def nearest_photon_seen(caster, density: PhotonDensity, q: np.ndarray, n: np.ndarray,
+                        neighbours: NearestPhotons | None = None, rows: np.ndarray | None = None
+                        ) -> tuple[np.ndarray, int]:
+    """(pick (h,) int64, rays cast): the nearest photon on the side ``n`` faces that the hit sees, -1
+    where none of the HOLE_NEIGHBOURS nearest is on that side and seen.
+
+    One visibility ray (both ends lifted as in :mod:`core.zone_visibility`) keeps a photon
+    behind a thin wall from lending its light (tests/test_stability.py). Each point's pick depends
+    on that point alone (not on the records or the photons' lighting), so a later lookup at the
+    same points may reuse it. neighbours, rows : the kd-tree answers to reuse and which of its
+    points q are (h,); by default the points' own.
+    """
+    out = np.full(len(q), -1, np.int64)
     if len(q) == 0 or len(density.p) == 0:
-        return E, 0
+        return out, 0
     if neighbours is None:
         neighbours, rows = NearestPhotons(density, q), np.arange(len(q))
     pick = _nearest_on_side(density, neighbours, rows, n)
     found = np.flatnonzero(pick >= 0)
     seen = _sees(caster, density, q[found], n[found], pick[found])
-    E[found[seen]] = lighting.E_indirect(pick[found[seen]])
+    out[found[seen]] = pick[found[seen]]
     # The nearest photon on the hit's side is often just round a corner (a column's flank, a
     # moulding's lip): 17 % of Sponza's holes got no indirect light from it. The nearest of the k
     # nearest that agree and are seen lends its light instead. (Hits with no agreeing photon among
     # the k have nothing more to try.)
     hidden = found[~seen]
-    E[hidden], more = _nearest_seen(caster, density, lighting, q[hidden], n[hidden], neighbours.k_nearest(rows[hidden]),
-                                    pick[hidden])
-    return E, len(found) + more
+    out[hidden], more = _nearest_seen(caster, density, q[hidden], n[hidden], neighbours.k_nearest(rows[hidden]),
+                                      pick[hidden])
+    return out, len(found) + more
 
 
 def _sees(caster, density: PhotonDensity, q: np.ndarray, n: np.ndarray, photon: np.ndarray) -> np.ndarray:
@@ -86,23 +111,22 @@ def _sees(caster, density: PhotonDensity, q: np.ndarray, n: np.ndarray, photon: 
     return caster.visible_between(q + lift * n, None, p_ph + lift * n_ph, None)
 
 
-def _nearest_seen(caster, density: PhotonDensity, lighting: PhotonLighting, q: np.ndarray, n: np.ndarray,
-                  near: np.ndarray, hidden: np.ndarray) -> tuple[np.ndarray, int]:
-    """(E (h, 3), rays): the indirect irradiance of the nearest of the k nearest photons ``near`` (h, k)
-    that agree with n and are seen from q (0 where none is); one visibility ray per agreeing candidate
-    other than ``hidden`` (h,), the photon each hit already failed to see."""
-    E = np.zeros((len(q), 3))
+def _nearest_seen(caster, density: PhotonDensity, q: np.ndarray, n: np.ndarray, near: np.ndarray,
+                  hidden: np.ndarray) -> tuple[np.ndarray, int]:
+    """(pick (h,) int64, rays): the nearest of the k nearest photons ``near`` (h, k) that agree with n
+    and are seen from q (-1 where none is); one visibility ray per agreeing candidate other than
+    ``hidden`` (h,), the photon each hit already failed to see."""
+    pick = np.full(len(q), -1, np.int64)
     if len(q) == 0:
-        return E, 0
+        return pick, 0
     agree = np.einsum("hkj,hj->hk", np.take(density.n, near, axis=0).astype(np.float64), n) > FALLBACK_SAME_SIDE_COS
     agree &= near != hidden[:, None]
     row, col = np.nonzero(agree)
     seen = np.zeros_like(agree)
     seen[row, col] = _sees(caster, density, q[row], n[row], near[row, col])
-    has = seen.any(axis=1)
-    first = np.argmax(seen, axis=1)
-    E[has] = lighting.E_indirect(near[np.flatnonzero(has), first[has]])
-    return E, len(row)
+    has = np.flatnonzero(seen.any(axis=1))
+    pick[has] = near[has, np.argmax(seen, axis=1)[has]]
+    return pick, len(row)
 
 
 def _nearest_on_side(density: PhotonDensity, neighbours: NearestPhotons, rows: np.ndarray, n: np.ndarray

@@ -19,7 +19,7 @@ import numpy as np
 from .albedo import albedo as albedo_at
 from .direct import direct_irradiance
 from .gather_cells import CellSums
-from .photon_fallback import NearestPhotons, nearest_photon_irradiance
+from .photon_fallback import NOT_ASKED, NearestPhotons, nearest_photon_seen, photon_irradiance
 from .zone_grid import spatial_order
 
 
@@ -130,33 +130,47 @@ def indirect_at_hits(caster, sources, q: np.ndarray, n_hit: np.ndarray) -> tuple
     The hits are looked up in Morton order (:func:`~core.zone_grid.spatial_order`): the record grid
     and the photon kd-tree are then walked along neighbouring cells and nodes.
     """
-    (E_indirect,), hole_rays = _indirect_facing(caster, sources, q, (n_hit,))
+    (E_indirect,), hole_rays, _ = _indirect_facing(caster, sources, q, (n_hit,))
     return E_indirect, hole_rays
 
 
-def indirect_on_both_sides(caster, sources, q: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+def indirect_on_both_sides(caster, sources, q: np.ndarray, n: np.ndarray, known: np.ndarray | None = None
+                           ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
     """:func:`indirect_at_hits` at points q on the side n (h, 3) faces and on the other: (E front (h, 3),
-    E back (h, 3), fallback rays). The nearest-photon fallback asks the kd-tree once per point."""
-    (front, back), rays = _indirect_facing(caster, sources, q, (n, -n))
-    return front, back, rays
+    E back (h, 3), fallback rays, picks (2, h)). The nearest-photon fallback asks the kd-tree once per point.
+
+    picks : per side and point the fallback's photon (:func:`~core.photon_fallback.nearest_photon_seen`;
+    NOT_ASKED where a record accepted the point); known : such picks from an earlier lookup at the
+    same points, reused where they were asked (a pick depends on the point alone).
+    """
+    (front, back), rays, picks = _indirect_facing(caster, sources, q, (n, -n), known)
+    return front, back, rays, picks
 
 
-def _indirect_facing(caster, sources, q: np.ndarray, normals: tuple) -> tuple[tuple, int]:
-    """((E_indirect (h, 3) facing each of ``normals``, ...), fallback rays) at points q (h, 3); the
-    sides share one Morton order and one set of kd-tree answers."""
+def _indirect_facing(caster, sources, q: np.ndarray, normals: tuple, known: np.ndarray | None = None
+                     ) -> tuple[tuple, int, np.ndarray]:
+    """((E_indirect (h, 3) facing each of ``normals``, ...), fallback rays, picks (sides, h)) at points
+    q (h, 3); the sides share one Morton order and one set of kd-tree answers. known : as
+    :func:`indirect_on_both_sides`."""
     order = spatial_order(q)
     q = q[order]
     neighbours = NearestPhotons(sources.density, q)
     out, hole_rays = [], 0
-    for n_hit in normals:
+    picks = np.full((len(normals), len(q)), NOT_ASKED, np.int64)
+    for side, n_hit in enumerate(normals):
         n_hit = n_hit[order]
         E_sorted, w_sum = sources.lookup.irradiance(q, n_hit)
         hole = np.flatnonzero(w_sum <= 0)
         if len(hole) and sources.nearest_photon_fallback:
-            E_sorted[hole], rays = nearest_photon_irradiance(caster, sources.density, sources.lighting, q[hole],
-                                                             n_hit[hole], neighbours, hole)
-            hole_rays += rays
+            pick = np.full(len(hole), NOT_ASKED, np.int64) if known is None else known[side, order[hole]]
+            ask = np.flatnonzero(pick == NOT_ASKED)
+            if len(ask):
+                pick[ask], rays = nearest_photon_seen(caster, sources.density, q[hole[ask]], n_hit[hole[ask]],
+                                                      neighbours, hole[ask])
+                hole_rays += rays
+            E_sorted[hole] = photon_irradiance(sources.lighting, pick)
+            picks[side, order[hole]] = pick
         E_indirect = np.empty_like(E_sorted)
         E_indirect[order] = E_sorted
         out.append(E_indirect)
-    return tuple(out), hole_rays
+    return tuple(out), hole_rays, picks

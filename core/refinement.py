@@ -89,7 +89,8 @@ def gather_sources(density: PhotonDensity, lighting: PhotonLighting, records: Ir
         progress.begin(("Pass 3" if use == 0 else "Hole records") + ": irradiance over the hit grid")
     serial = caster.serial()
     hits = len(records) * settings.hemisphere_theta * settings.hemisphere_phi
-    grid, counters = build_hit_grid(scene, caster, lambda q, n: indirect_on_both_sides(serial, sources, q, n),
+    grid, counters = build_hit_grid(scene, caster,
+                                    lambda q, n, known: indirect_on_both_sides(serial, sources, q, n, known),
                                     params.R_min, hits, settings.seed, [STREAM_HIT_GRID, use], executor, progress,
                                     direct_from)
     return replace(sources, hit_grid=grid), counters

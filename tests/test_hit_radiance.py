@@ -60,8 +60,8 @@ def test_a_cell_holds_the_direct_light_of_its_centroid_and_nothing_behind():
     scene = quad_scene([quad([0, 0, 0], [1, 0, 0], [0, 1, 0])], {"floor": (0, 8)}, [lamp])
     caster = RayCaster(scene.geometry.positions, scene.extent, make_executor(1), scene.geometry.transmission)
 
-    def no_indirect(q, n):
-        return np.zeros((len(q), 3)), np.zeros((len(q), 3)), 0
+    def no_indirect(q, n, known):
+        return np.zeros((len(q), 3)), np.zeros((len(q), 3)), 0, np.full((2, len(q)), -2)
 
     grid, counters = build_hit_grid(scene, caster, no_indirect, R_min=0.1, hits=10_000, seed=0, stream=[14, 0],
                                     executor=make_executor(1), progress=None)

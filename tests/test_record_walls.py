@@ -182,6 +182,44 @@ def test_gather_hits_outside_every_record_take_the_nearest_visible_photons_light
     assert np.allclose(E[1], 0.0)  # the nearest same-side photons are behind the wall
 
 
+def test_a_later_lookup_at_the_same_points_reuses_the_fallbacks_photons():
+    """The hole records' hit grid asks for the same centroids as pass 3's: the nearest-photon picks
+    depend on the point alone, so the second lookup casts no fallback ray and gets the same light."""
+    from pdic.core.interpolation import CacheLookup
+    from pdic.core.irradiance_cache import IrradianceCache
+    from pdic.core.photon_fallback import NOT_ASKED
+    from pdic.core.photons import PhotonLighting
+    from pdic.core.real_rays import indirect_on_both_sides
+    from pdic.core.refinement import GatherSources
+    from pdic.core.settings import Deviations
+
+    floor = quad([-1, -1, 0], [2, 0, 0], [0, 2, 0])
+    wall = quad([0.5, -1, 0], [0, 2, 0], [0, 0, 1])
+    tris = np.concatenate([floor, wall])
+    scene = lit(tris, PointLight("p", np.array([0.8, 0.0, 0.6]), np.full(3, 100.0)))
+    caster = RayCaster(tris)
+    photons, _ = trace_photons(scene, caster, 5_000, 1, seed=4)
+    lighting = PhotonLighting.zeros(len(photons))
+    lighting.w_sum[:] = 1.0
+    lighting.E_indirect_sum[:] = np.arange(len(photons), dtype=np.float32)[:, None]  # E tells the photon
+    far = IrradianceCache(p=np.array([[50.0, 0, 0]]), n=np.array([[0.0, 0, 1]]), E=np.ones((1, 3)),
+                          R=np.array([0.1]), grad_r=np.zeros((1, 3, 3)), grad_t=np.zeros((1, 3, 3)),
+                          photons_used=np.zeros(1, np.int32), hole=np.zeros(1, bool), refined=np.zeros(1, bool))
+    sources = GatherSources(PhotonDensity(photons), lighting, CacheLookup(far, 0.4, use_gradients=False), None,
+                            Deviations())
+    q = np.array([[0.8, 0.2, 0.0], [0.45, 0.0, 0.0], [0.7, -0.5, 0.0], [-0.5, 0.5, 0.0]])
+    up = np.tile([0.0, 0, 1], (len(q), 1))
+    front, back, rays, picks = indirect_on_both_sides(caster, sources, q, up)
+    assert rays > 0 and picks.shape == (2, len(q)) and (picks != NOT_ASKED).all()  # no record accepts any
+    seen = picks[0] >= 0
+    assert seen[0] and not seen[1]  # in sight of the lit side; behind the wall
+    np.testing.assert_array_equal(front[seen, 0], picks[0, seen])
+    again = indirect_on_both_sides(caster, sources, q, up, known=picks)
+    assert again[2] == 0  # no fallback ray cast
+    for a, b in zip((front, back, picks), (again[0], again[1], again[3])):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_a_gather_hit_whose_nearest_photon_is_round_a_corner_takes_the_next_one_it_sees():
     """A post 5 cm from the hit hides its nearest photon (E 5); one 30 cm away on the open side (E 9)
     lends its light instead of none (17 % of Sponza's holes got none)."""

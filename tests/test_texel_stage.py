@@ -69,6 +69,21 @@ def test_per_texel_points_are_weighted_centroids_per_triangle():
     assert np.allclose(merged.p[index[3]], p[3]) and merged.triangle[index[3]] == 6
 
 
+def test_per_texel_groups_come_in_target_texel_triangle_order_whatever_the_key_size():
+    """One int64 key where (target, texel, triangle) fit in it, the rows where not: same groups, same order."""
+    from pdic.core.texels import _group_key
+
+    rng = np.random.default_rng(3)
+    target, texel, triangle = rng.integers(0, 3, 500), rng.integers(0, 40, 500), rng.integers(0, 7, 500)
+    rows = np.stack([target, texel, triangle], axis=1)
+    expected = np.unique(rows, axis=0, return_index=True, return_inverse=True)
+    for big in (0, 2 ** 40):  # 3 x 2^40 x 2^40 texels x triangles overflows an int64: rows are kept
+        key = _group_key(target, texel + big, triangle + big)
+        assert key.ndim == (2 if big else 1)
+        got = np.unique(key, axis=0 if key.ndim == 2 else None, return_index=True, return_inverse=True)
+        assert np.array_equal(got[1], expected[1]) and np.array_equal(got[2].ravel(), expected[2].ravel())
+
+
 def test_lookup_from_the_records_side_equals_equation_3_over_all_records():
     rng = np.random.default_rng(21)
     K = 300
