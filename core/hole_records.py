@@ -167,9 +167,11 @@ def _hole_records(scene, caster, density, sources, cache, cand_p, cand_n, params
                   round_: int) -> tuple[IrradianceCache, dict]:
     """One round of section 3.4: Algorithm 1 over the uncovered samples, refined at Final quality;
     and the refinement's counters."""
+    # Refined by standard gathering, a hole record's E_k comes from its rays alone: no density estimate.
+    estimate = not settings.refine or settings.reuse_photon_paths
     new, zones, _ = cache_for_holes(density, cand_p, cand_n, params,
                                     np.random.default_rng([settings.seed, STREAM_HOLE_ORDER, round_]),
-                                    existing=cache, caster=caster)
+                                    existing=cache, caster=caster, estimate=estimate)
     counters = {}
     if settings.refine and len(new):
         new, counters = refine_records(scene, caster, sources, new, zones, settings, params, executor, progress,

@@ -58,7 +58,7 @@ from scipy.spatial import cKDTree
 
 from .constants import COVERAGE_ANGLES, COVERAGE_RINGS, STREAM_RECORD_ORDER, WALL_RAYS
 from .coverage import surface_coverages
-from .density import PhotonDensity, ball_pairs
+from .density import PhotonDensity, ZoneEstimates, ball_pairs
 from .executor import slices
 from .photons import PhotonLighting
 from .record_walls import beyond_wall, open_walls, wall_distances
@@ -199,18 +199,23 @@ def cache_from_photons(density: PhotonDensity, params: CacheParameters, seed: in
 
 
 def cache_for_holes(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray, params: CacheParameters,
-                    rng: np.random.Generator, existing: IrradianceCache, caster=None
+                    rng: np.random.Generator, existing: IrradianceCache, caster=None, estimate: bool = True
                     ) -> tuple[IrradianceCache, Zones, CacheBuildStats]:
-    """Section 3.4: Algorithm 1 over texel samples (c, 3) no record covers; records flagged ``hole``."""
+    """Section 3.4: Algorithm 1 over texel samples (c, 3) no record covers; records flagged ``hole``.
+
+    estimate : False leaves E_k (and photons_used) 0 and the zones empty, for records that final
+        gathering will give their E_k without reading their zone's photons: the density estimate
+        (its surface coverage rays and photon queries) would be thrown away.
+    """
     return place_records(density, cand_p, cand_n, np.zeros(len(cand_p)), np.zeros((len(cand_p), 3)), params, rng,
-                         candidate_is_photon=False, existing=existing, caster=caster)
+                         candidate_is_photon=False, existing=existing, caster=caster, estimate=estimate)
 
 
 # --------------------------------------------------------------------------- Algorithm 1
 def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray, w_sum: np.ndarray,
                   E_sum: np.ndarray, params: CacheParameters, rng: np.random.Generator,
                   candidate_is_photon: bool, progress=None, existing: IrradianceCache | None = None,
-                  caster=None) -> tuple[IrradianceCache, Zones, CacheBuildStats]:
+                  caster=None, estimate: bool = True) -> tuple[IrradianceCache, Zones, CacheBuildStats]:
     """The record-placement loop of Algorithm 1 over a generic candidate set, in blocks.
 
     cand_p, cand_n : (c, 3) float64 candidate positions and normals.
@@ -221,6 +226,7 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
     existing : records already placed (neighbour clamping also looks at them).
     caster : a :class:`core.rays.RayCaster` over the scene; with it each record finds the walls
         in its tangent plane (:func:`~core.record_walls.wall_distances`), past which it is not used.
+    estimate : as :func:`cache_for_holes` (candidates other than photons only).
     """
     threshold = 1.0 / params.a
     stats = CacheBuildStats()
@@ -239,7 +245,7 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
             R_k = clamp.within(cand_p[picked], R_k[walked])
             new, members, w_members, owner = _create_records(
                 density, picked, cand_p[picked], cand_n[picked], R_k, params, caster, cand_tree, cand_p, cand_n,
-                candidate_is_photon, stats)
+                candidate_is_photon, stats, estimate or candidate_is_photon)
             _accumulate(w_sum, E_sum, members, w_members, new.E[owner])  # Algorithm 1's last line
             # A candidate is covered by its own record even if Equation 2 rounding dropped it.
             short = w_sum[picked] < threshold
@@ -323,9 +329,9 @@ def _walk(p: np.ndarray, n: np.ndarray, R_k: np.ndarray, a: float, workers: int 
 
 
 def _create_records(density, picked, p_k, n_k, R_k, params: CacheParameters, caster, cand_tree, cand_p, cand_n,
-                    candidate_is_photon: bool, stats: CacheBuildStats):
+                    candidate_is_photon: bool, stats: CacheBuildStats, estimate: bool = True):
     """B records of Algorithm 1 at candidates ``picked`` (B,) (p_k, n_k (B, 3), R_k (B,)): walls, E_k and
-    what they cover.
+    what they cover. estimate : False skips E_k (0) and the zones (empty), see :func:`cache_for_holes`.
 
     Returns (the records as a :class:`_Chunk`, covered candidates (m,), their w (m,), their record (m,)).
     """
@@ -342,12 +348,17 @@ def _create_records(density, picked, p_k, n_k, R_k, params: CacheParameters, cas
     # photons off its tangent plane that cannot see it (a closed box's inside) are not its own.
     est_wall = None if candidate_is_photon else wall
     est_caster = caster if not candidate_is_photon and params.record_visibility else None  # deviation: record-visibility
-    coverage = None
-    if caster is not None and params.kernel_coverage:  # deviation: surface-coverage, docs/DEVIATIONS.md
-        coverage = surface_coverages(caster, p_k, n_k, a * R_k, est_wall, density.lit_back_faces(caster.face_normals))
-        stats.wall_rays += COVERAGE_RINGS * COVERAGE_ANGLES * B
-    own = picked if candidate_is_photon and params.leave_one_out else None  # deviation: leave-one-out
-    zone = density.records(p_k, n_k, R_k, a, est_wall, coverage, est_caster, own)
+    if estimate:
+        coverage = None
+        if caster is not None and params.kernel_coverage:  # deviation: surface-coverage, docs/DEVIATIONS.md
+            coverage = surface_coverages(caster, p_k, n_k, a * R_k, est_wall,
+                                         density.lit_back_faces(caster.face_normals))
+            stats.wall_rays += COVERAGE_RINGS * COVERAGE_ANGLES * B
+        own = picked if candidate_is_photon and params.leave_one_out else None  # deviation: leave-one-out
+        zone = density.records(p_k, n_k, R_k, a, est_wall, coverage, est_caster, own)
+    else:
+        zone = ZoneEstimates(np.zeros(B, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros((B, 3)),
+                             np.zeros(B, np.int64))
     chunk = _Chunk(p_k, n_k, zone.E_k, R_k, zone.used, wall, np.split(zone.photons, np.cumsum(zone.lengths)[:-1]))
     if candidate_is_photon:
         return chunk, zone.photons, zone.w, np.repeat(np.arange(B), zone.lengths)

@@ -92,3 +92,24 @@ def test_hole_block_walk_covers_every_candidate_within_its_walls():
     assert np.isfinite(cache.wall).any()  # records near x = 0.3 found the wall
     later, _ = _covered_centres(cache, walls=True)
     assert later == 0  # walls included: a candidate past an earlier record's wall may get its own record
+
+
+def test_hole_records_left_to_final_gathering_skip_the_density_estimate_only():
+    """Without the estimate (Final with standard gathering) the same records with the same radii and
+    walls, E_k 0 and no zone photons; with it, E_k from the photons. One block: block sizes, which
+    follow the zones' sizes, cannot differ."""
+    from pdic.core.irradiance_cache import cache_for_holes
+
+    caster, density = _floor_and_wall()
+    g = np.linspace(-0.5, 0.5, 5)
+    cand_p = np.stack([*np.meshgrid(g, g), np.zeros((5, 5))], axis=-1).reshape(-1, 3)
+    cand_n = np.tile([0.0, 0.0, 1.0], (len(cand_p), 1))
+    full, zones, _ = cache_for_holes(density, cand_p, cand_n, PARAMS, np.random.default_rng(2), IrradianceCache(),
+                                     caster)
+    bare, no_zones, _ = cache_for_holes(density, cand_p, cand_n, PARAMS, np.random.default_rng(2), IrradianceCache(),
+                                        caster, estimate=False)
+    for name in ("p", "n", "R", "wall", "hole"):
+        assert np.array_equal(getattr(full, name), getattr(bare, name))
+    assert (full.E > 0).any() and full.photons_used.sum() > 0
+    assert not bare.E.any() and not bare.photons_used.any()
+    assert len(no_zones.parts) == len(bare) and not any(len(z) for z in no_zones.parts)
