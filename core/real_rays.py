@@ -61,7 +61,7 @@ def trace_real(caster, frames, cells: np.ndarray, sums: CellSums, rng: np.random
     d_world = w_local[:, :1] * t1_rec + w_local[:, 1:2] * t2_rec + w_local[:, 2:3] * n_rec
     # Push the origins off the record's surface once; hit points are that origin plus t.
     origin = caster.offset_origins(np.take(p_k, rec, axis=0), n_rec, d_world)
-    hits = caster.intersect(origin, d_world)
+    hits = caster.intersect(origin, d_world, unit=True)
     sums.add_real_rays(cells, w_local, hits.t)
     hit = np.flatnonzero(hits.hit)
     d_hit = np.take(d_world, hit, axis=0)

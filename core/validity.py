@@ -57,7 +57,7 @@ def inside_geometry(caster: RayCaster, face_normals: np.ndarray, p: np.ndarray, 
         t1_o, t2_o, n_o = (np.take(v, open_, axis=0)[:, None] for v in (t1, t2, n))
         d = (w[..., :1] * t1_o + w[..., 1:2] * t2_o + w[..., 2:3] * n_o).reshape(-1, 3)
         ray_sample = np.repeat(open_, step)
-        hits = caster.intersect(np.take(p, ray_sample, axis=0), d, normals=np.take(n, ray_sample, axis=0))
+        hits = caster.intersect(np.take(p, ray_sample, axis=0), d, normals=np.take(n, ray_sample, axis=0), unit=True)
         cast += len(d)
         hit = hits.hit
         is_back = np.zeros(len(d), bool)
