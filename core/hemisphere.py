@@ -101,26 +101,25 @@ class Hemisphere:
         v_lo = np.stack([-np.sin(phi_lo), np.cos(phi_lo), np.zeros(N)], axis=1)
         # Rotational: pi/(MN) sum_k v_k sum_j tan(theta_j) L_jk, the cell sum of L (n x w) dw
         # (Ward & Heckbert write -tan with v_k pointing the other way round).
+        # (Batched matrix products, not einsum: einsum's generic loop took ~60 % of the time at 16 x 32 cells.)
         if rot_axis is None:
             rot = np.einsum("j,bjkc->bkc", np.tan(theta_mid), L)
-            grad_r = self.cell_weight * np.einsum("bkc,kx->bcx", rot, v)
+            grad_r = self.cell_weight * (rot.transpose(0, 2, 1) @ v)
         else:
-            grad_r = self.cell_weight * np.einsum("bjkc,bjkx->bcx", L, rot_axis.reshape(B, M, N, 3))
+            grad_r = self.cell_weight * (L.reshape(B, M * N, 3).transpose(0, 2, 1) @ rot_axis.reshape(B, M * N, 3))
         # Translational, theta boundaries (rows j-1 | j), j >= 1.
         grad_t = np.zeros((B, 3, 3))
         if M > 1:
             coef = np.sin(theta_lo[1:]) * np.cos(theta_lo[1:]) ** 2  # (M-1,)
-            r_min = np.minimum(r[:, 1:], r[:, :-1])  # (B, M-1, N)
-            dL = L[:, 1:] - L[:, :-1]
-            term = (2 * np.pi / N) * np.einsum("j,bjk,bjkc->bkc", coef, 1.0 / r_min, dL)
-            grad_t += np.einsum("bkc,kx->bcx", term, u)
+            weight = (2 * np.pi / N) * coef[None, :, None] / np.minimum(r[:, 1:], r[:, :-1])  # (B, M-1, N)
+            term = (weight[..., None] * (L[:, 1:] - L[:, :-1])).sum(axis=1)  # (B, N, 3)
+            grad_t += term.transpose(0, 2, 1) @ u
         # Translational, phi boundaries (columns k-1 | k), wrapping around.
         if N > 1:
             coef = np.sin(theta_hi) - np.sin(theta_lo)  # (M,)
-            r_min = np.minimum(r, np.roll(r, 1, axis=2))
-            dL = L - np.roll(L, 1, axis=2)
-            term = np.einsum("j,bjk,bjkc->bkc", coef, 1.0 / r_min, dL)
-            grad_t += np.einsum("bkc,kx->bcx", term, v_lo)
+            weight = coef[None, :, None] / np.minimum(r, np.roll(r, 1, axis=2))
+            term = (weight[..., None] * (L - np.roll(L, 1, axis=2))).sum(axis=1)
+            grad_t += term.transpose(0, 2, 1) @ v_lo
         return E, grad_r, grad_t
 
 

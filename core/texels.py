@@ -44,6 +44,9 @@ class TexelPoints:
         return len(self.p)
 
     def take(self, index) -> "TexelPoints":
+        """The points ``index`` selects (slice, mask or integer array)."""
+        if isinstance(index, np.ndarray) and index.dtype.kind in "iu":  # np.take: ~3x faster than fancy rows
+            return TexelPoints(*(np.take(getattr(self, f), index, axis=0) for f in self.__dataclass_fields__))
         return TexelPoints(*(getattr(self, f)[index] for f in self.__dataclass_fields__))
 
     def per_texel(self) -> tuple["TexelPoints", np.ndarray]:
