@@ -156,6 +156,17 @@ def test_a_record_at_a_photon_leaves_that_photon_out_of_its_estimate():
     assert np.array_equal(with_own.photons, without.photons)  # it stays in the zone it covers
 
 
+def _photons_beyond_a_wall():
+    """(caster, photons): a floor with a wall standing on it at x = 0.5; the lamp beyond the wall and
+    lower than it, so photons land only on the far side (x > 0.5)."""
+    floor = quad([-1, -1, 0], [2, 0, 0], [0, 2, 0])
+    wall = quad([0.5, -1, 0], [0, 2, 0], [0, 0, 1])
+    tris = np.concatenate([floor, wall])
+    scene = lit(tris, PointLight("p", np.array([0.8, 0.0, 0.6]), np.full(3, 100.0)))
+    caster = RayCaster(tris)
+    return caster, trace_photons(scene, caster, 5_000, 1, seed=4)[0]
+
+
 def test_gather_hits_outside_every_record_take_the_nearest_visible_photons_light():
     # Pass 3 reads indirect light at its rays' hits from pass 2's records; where none accepts
     # the hit (a third of Sponza's hits) it must fall back to the nearest photon, not to 0, but
@@ -163,13 +174,7 @@ def test_gather_hits_outside_every_record_take_the_nearest_visible_photons_light
     from pdic.core.photon_fallback import nearest_photon_irradiance
     from pdic.core.photons import PhotonLighting
 
-    floor = quad([-1, -1, 0], [2, 0, 0], [0, 2, 0])
-    wall = quad([0.5, -1, 0], [0, 2, 0], [0, 0, 1])  # a wall standing on the floor at x = 0.5
-    tris = np.concatenate([floor, wall])
-    # The lamp is beyond the wall and lower than it: photons land only on the far side (x > 0.5).
-    scene = lit(tris, PointLight("p", np.array([0.8, 0.0, 0.6]), np.full(3, 100.0)))
-    caster = RayCaster(tris)
-    photons, _ = trace_photons(scene, caster, 5_000, 1, seed=4)
+    caster, photons = _photons_beyond_a_wall()
     lighting = PhotonLighting.zeros(len(photons))
     lighting.w_sum[:] = 1.0
     lighting.E_indirect_sum[:] = 7.0
@@ -193,12 +198,7 @@ def test_a_later_lookup_at_the_same_points_reuses_the_fallbacks_photons():
     from pdic.core.refinement import GatherSources
     from pdic.core.settings import Deviations
 
-    floor = quad([-1, -1, 0], [2, 0, 0], [0, 2, 0])
-    wall = quad([0.5, -1, 0], [0, 2, 0], [0, 0, 1])
-    tris = np.concatenate([floor, wall])
-    scene = lit(tris, PointLight("p", np.array([0.8, 0.0, 0.6]), np.full(3, 100.0)))
-    caster = RayCaster(tris)
-    photons, _ = trace_photons(scene, caster, 5_000, 1, seed=4)
+    caster, photons = _photons_beyond_a_wall()
     lighting = PhotonLighting.zeros(len(photons))
     lighting.w_sum[:] = 1.0
     lighting.E_indirect_sum[:] = np.arange(len(photons), dtype=np.float32)[:, None]  # E tells the photon
