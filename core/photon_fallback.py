@@ -52,19 +52,6 @@ NOT_ASKED = -2
 """A fallback pick no one asked for yet (-1: asked, no photon on that side is seen; >= 0: the photon)."""
 
 
-def nearest_photon_irradiance(caster, density: PhotonDensity, lighting: PhotonLighting, q: np.ndarray,
-                              n: np.ndarray, neighbours: NearestPhotons | None = None,
-                              rows: np.ndarray | None = None) -> tuple[np.ndarray, int]:
-    """Pass 2's indirect irradiance of the nearest photon on the side ``n`` faces, if the hit sees it.
-
-    q, n : (h, 3) hit points and unit normals facing the ray. Returns (E (h, 3) float64, rays
-    cast); E is 0 where none of the HOLE_NEIGHBOURS nearest photons is on that side and seen.
-    neighbours, rows : as :func:`nearest_photon_seen`.
-    """
-    pick, rays = nearest_photon_seen(caster, density, q, n, neighbours, rows)
-    return photon_irradiance(lighting, pick), rays
-
-
 def photon_irradiance(lighting: PhotonLighting, pick: np.ndarray) -> np.ndarray:
     """(h, 3) float64 pass 2's indirect irradiance of photons ``pick`` (h,), 0 where pick < 0."""
     E = np.zeros((len(pick), 3))
@@ -77,7 +64,8 @@ def nearest_photon_seen(caster, density: PhotonDensity, q: np.ndarray, n: np.nda
                         neighbours: NearestPhotons | None = None, rows: np.ndarray | None = None
                         ) -> tuple[np.ndarray, int]:
     """(pick (h,) int64, rays cast): the nearest photon on the side ``n`` faces that the hit sees, -1
-    where none of the HOLE_NEIGHBOURS nearest is on that side and seen.
+    where none of the HOLE_NEIGHBOURS nearest is on that side and seen (its light:
+    :func:`photon_irradiance`). q, n : (h, 3) hit points and unit normals facing the ray.
 
     One visibility ray (both ends lifted as in :mod:`core.zone_visibility`) keeps a photon
     behind a thin wall from lending its light (tests/test_stability.py). Each point's pick depends

@@ -89,7 +89,7 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
     """(h, 3) radiance toward the rays, albedo at the hit x (E_direct + E_indirect) / pi, and rays spent.
 
     ``sources`` : :class:`core.refinement.GatherSources`. Where no record accepts the hit
-    (w_sum = 0) E_indirect comes from :func:`~core.photon_fallback.nearest_photon_irradiance`
+    (w_sum = 0) E_indirect comes from :func:`~core.photon_fallback.nearest_photon_seen`
     (deviation: nearest-photon-fallback): on Sponza a third of the hits are such holes. With
     ``sources.hit_grid`` (deviation: hit-grid) a hit that sees its grid cell's centroid reads
     E_direct + E_indirect and the mean albedo from the cell (one occlusion ray); the rest are shaded

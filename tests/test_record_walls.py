@@ -171,7 +171,7 @@ def test_gather_hits_outside_every_record_take_the_nearest_visible_photons_light
     # Pass 3 reads indirect light at its rays' hits from pass 2's records; where none accepts
     # the hit (a third of Sponza's hits) it must fall back to the nearest photon, not to 0, but
     # never to a photon on the other side of a wall.
-    from pdic.core.photon_fallback import nearest_photon_irradiance
+    from pdic.core.photon_fallback import nearest_photon_seen, photon_irradiance
     from pdic.core.photons import PhotonLighting
 
     caster, photons = _photons_beyond_a_wall()
@@ -181,7 +181,8 @@ def test_gather_hits_outside_every_record_take_the_nearest_visible_photons_light
     density = PhotonDensity(photons)
     up = np.tile([0.0, 0, 1], (2, 1))
     beyond, near_wall = [0.8, 0.2, 0.0], [0.45, 0.0, 0.0]
-    E, rays = nearest_photon_irradiance(caster, density, lighting, np.array([beyond, near_wall]), up)
+    pick, rays = nearest_photon_seen(caster, density, np.array([beyond, near_wall]), up)
+    E = photon_irradiance(lighting, pick)
     assert 2 <= rays <= 2 + 8  # one ray each, then one per agreeing neighbour of the hidden one
     assert np.allclose(E[0], 7.0)  # a photon nearby on the same side and in sight
     assert np.allclose(E[1], 0.0)  # the nearest same-side photons are behind the wall
@@ -223,7 +224,7 @@ def test_a_later_lookup_at_the_same_points_reuses_the_fallbacks_photons():
 def test_a_gather_hit_whose_nearest_photon_is_round_a_corner_takes_the_next_one_it_sees():
     """A post 5 cm from the hit hides its nearest photon (E 5); one 30 cm away on the open side (E 9)
     lends its light instead of none (17 % of Sponza's holes got none)."""
-    from pdic.core.photon_fallback import nearest_photon_irradiance
+    from pdic.core.photon_fallback import nearest_photon_seen, photon_irradiance
     from pdic.core.photons import PhotonLighting, PhotonMap
 
     post = quad([0.05, -0.2, -0.1], [0, 0.4, 0], [0, 0, 1.0])
@@ -236,8 +237,8 @@ def test_a_gather_hit_whose_nearest_photon_is_round_a_corner_takes_the_next_one_
     lighting = PhotonLighting.zeros(2)
     lighting.w_sum[:] = 1.0
     lighting.E_indirect_sum[:] = np.array([[5.0] * 3, [9.0] * 3])
-    E, rays = nearest_photon_irradiance(caster, PhotonDensity(photons), lighting, np.zeros((1, 3)),
-                                        np.array([[0.0, 0, 1]]))
+    pick, rays = nearest_photon_seen(caster, PhotonDensity(photons), np.zeros((1, 3)), np.array([[0.0, 0, 1]]))
+    E = photon_irradiance(lighting, pick)
     assert np.allclose(E[0], 9.0)
     assert rays == 1 + 1  # the hidden nearest is not tested twice
 
