@@ -55,7 +55,9 @@ CROP = 40
 class SceneSpec:
     """One competitor scene: how to load it, its light-map size and sample counts.
 
-    resolution : fixed light-map side in texels, or 0 to take it from ``texel_density``.
+    resolution : fixed light-map side in texels, or 0 to take it from ``texel_density`` and the
+        surface area, as the add-on did up to session 16 (the charts fitted into that side, not the
+        side grown to hold them at the density): the scenes stay the ones every row was measured on.
     ladder : Cycles samples per texel of the measured bakes.
     reference_spp : samples of each bake of the seed pair that serves as the reference.
     crop_world : world point (m) the crops centre on (the texel nearest to it).
@@ -167,6 +169,16 @@ def join(objects: list):
     return bpy.context.view_layer.objects.active
 
 
+def area_resolution(obj, settings) -> int:
+    """The light-map side ``settings.texel_density`` gives ``obj``'s world surface area."""
+    from pdic.core import unwrap
+    from pdic.pdic_addon import uvmaps
+
+    area = uvmaps.mesh_triangles(obj.data).surface_area(tuple(obj.matrix_world.to_scale()))
+    return unwrap.choose_resolution(area, settings.texel_density, settings.default_resolution,
+                                    settings.min_resolution, settings.max_resolution)
+
+
 def load_scene(spec: SceneSpec, work: Path):
     """(the joined Blender object, the add-on's core scene) with ``PDIC_Lightmap`` UVs at the spec's size."""
     import bpy
@@ -178,8 +190,8 @@ def load_scene(spec: SceneSpec, work: Path):
     loader = {"cornell": bench_scenes.load_cornell, "sponza": bench_scenes.load_sponza,
               "occluded": bench_scenes.load_occluded}[spec.loader]
     obj = join(loader())
-    obj.pdic.resolution = spec.resolution
     settings = preset("FINAL", texel_density=spec.texel_density)
+    obj.pdic.resolution = spec.resolution or area_resolution(obj, settings)
     work.mkdir(parents=True, exist_ok=True)
     job = BakeJob(bpy.context, settings, objects=[obj], output_folder=str(work / "out"), cache_dir=work / "unwrap")
     job.prepare()

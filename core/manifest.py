@@ -33,9 +33,10 @@ Schema (``schema_version`` 1)
         entries of the objects it did not re-bake.
     further keys (sorted) as the caller supplies them, e.g. ``texels`` (int,
     covered texels), ``charts`` (int), ``utilization`` (float, 0..1 of the square),
-    ``resolution_requested`` (int), ``texel_density_achieved`` (float, texels per scene unit
-    over the mesh's surface: below a requested Texel Density by what padding and packing leave
-    empty; the bake warns under half of it).
+    ``resolution_requested`` (int, the side the surface area gives; with a Texel Density the
+    map grows past it until the charts fit at that density), ``texel_density_achieved`` (float,
+    texels per scene unit over the mesh's surface: at least a requested Texel Density unless the
+    map would outgrow the largest light map, when the bake warns under half of it).
 ``settings`` : dict
     The :class:`core.settings.BakeSettings` fields (see that module for units),
     keys sorted.

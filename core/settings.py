@@ -135,7 +135,8 @@ class BakeSettings:
     default_resolution: int = 256
     """Light-map width and height for an object without an override (when texel_density is 0)."""
     texel_density: float = 0.0
-    """Texels per scene unit; 0 uses default_resolution. Typical 8-64 for metre-scale scenes."""
+    """Texels per scene unit; 0 uses default_resolution. A map grows until its charts fit at this density
+    (up to max_resolution). Typical 8-64 for metre-scale scenes."""
     min_resolution: int = 16
     max_resolution: int = 4096
     padding: int = 2

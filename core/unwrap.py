@@ -155,9 +155,11 @@ class UnwrapResult:
 
 
 def cache_key(positions: np.ndarray, triangles: np.ndarray, resolution: int, padding: int,
-              triangle_polygon: np.ndarray | None = None, max_resolution: int = 0) -> str:
+              triangle_polygon: np.ndarray | None = None, max_resolution: int = 0,
+              texels_per_unit: float = 0.0) -> str:
     """sha256 (hex) of everything the UVs depend on: geometry, polygons, resolution,
-    padding, the growth limit, the xatlas version and :data:`ALGORITHM_VERSION`."""
+    padding, the growth limit, the texel density held, the xatlas version and
+    :data:`ALGORITHM_VERSION`."""
     h = hashlib.sha256()
     h.update(b"pdic-unwrap\0")
     h.update(np.ascontiguousarray(positions, dtype=np.float64).tobytes())
@@ -168,6 +170,8 @@ def cache_key(positions: np.ndarray, triangles: np.ndarray, resolution: int, pad
         h.update(np.ascontiguousarray(triangle_polygon, dtype=np.int64).tobytes())
     h.update(f"\0{int(resolution)}\0{int(padding)}\0{int(max_resolution)}\0{xatlas.__version__}"
              f"\0{ALGORITHM_VERSION}".encode())
+    if texels_per_unit > 0:  # keys without a density stay those of earlier versions
+        h.update(f"\0{float(texels_per_unit)!r}".encode())
     return h.hexdigest()
 
 
@@ -175,7 +179,8 @@ def cache_key(positions: np.ndarray, triangles: np.ndarray, resolution: int, pad
 def unwrap(positions: np.ndarray, triangles: np.ndarray, resolution: int, padding: int,
            cache_dir: Path | None = None, triangle_polygon: np.ndarray | None = None, *,
            max_resolution: int = 0, cancelled: Callable[[], bool] | None = None,
-           progress: Callable[[str], None] | None = None, in_process: bool = False) -> UnwrapResult:
+           progress: Callable[[str], None] | None = None, in_process: bool = False,
+           texels_per_unit: float = 0.0) -> UnwrapResult:
     """Unwrap a mesh into non-overlapping light-map charts.
 
     Parameters
@@ -193,6 +198,10 @@ def unwrap(positions: np.ndarray, triangles: np.ndarray, resolution: int, paddin
         (see :func:`loop_uvs`).
     max_resolution : when the charts do not fit ``resolution``, grow the map (by 25 %
         steps) up to this size; ``UnwrapResult.resolution`` says what was used. 0: never grow.
+    texels_per_unit : a texel density to hold, texels per unit of ``positions`` (the bake's
+        Texel Density): the map grows past ``resolution``, up to ``max_resolution``, until the
+        charts fit at this density instead of being scaled down into ``resolution``. 0: fit
+        ``resolution`` (a resolution override, or no density).
     cancelled : called while xatlas runs; returning True kills it and raises
         ``core.executor.Cancelled``.
     progress : called with a short message when a step starts (e.g. a retry).
@@ -212,11 +221,13 @@ def unwrap(positions: np.ndarray, triangles: np.ndarray, resolution: int, paddin
     UnwrapError : the layout still overlaps after repair.
     """
     p, tri, poly = _validated(positions, triangles, resolution, padding, triangle_polygon)
+    if not (math.isfinite(texels_per_unit) and texels_per_unit >= 0):
+        raise ValueError(f"unwrap: texels per unit must be finite and >= 0, got {texels_per_unit!r}")
 
     # -- content-keyed cache (STYLE principle 8); a damaged or overlapping entry is recomputed
     path = None
     if cache_dir is not None:
-        key = cache_key(p, tri, resolution, padding, poly, max_resolution)
+        key = cache_key(p, tri, resolution, padding, poly, max_resolution, texels_per_unit)
         path = Path(cache_dir) / f"unwrap-{key}.npz"
         cached = _load(path, len(tri))
         if cached is not None and uv_overlaps(cached.uv, None, cached.resolution, cached.resolution) == 0:
@@ -227,7 +238,8 @@ def unwrap(positions: np.ndarray, triangles: np.ndarray, resolution: int, paddin
                               resolution=int(resolution))
     else:
         run = _layout_here if in_process else _layout_in_child
-        out = run(p, tri, int(resolution), int(padding), poly, int(max_resolution), cancelled, progress)
+        out = run(p, tri, int(resolution), int(padding), poly, int(max_resolution), cancelled, progress,
+                  float(texels_per_unit))
         result = UnwrapResult(out["uv"], out["chart_count"], out["utilization"], False, out["polygons_fixed"],
                               out["chart"], out["resolution"], out["polygons_detached"])
     # -- the gate: a light-map layout that overlaps is never returned
@@ -273,11 +285,11 @@ def _validated(positions, triangles, resolution, padding, triangle_polygon):
 
 
 # --------------------------------------------------------------------------- running xatlas
-def _layout_here(p, tri, resolution, padding, poly, max_resolution, cancelled, progress, variant=0):
+def _layout_here(p, tri, resolution, padding, poly, max_resolution, cancelled, progress, texels_per_unit=0.0):
     from . import xatlas_charts
 
     try:
-        return xatlas_charts.layout(p, tri, resolution, padding, poly, max_resolution, variant)
+        return xatlas_charts.layout(p, tri, resolution, padding, poly, max_resolution, 0, texels_per_unit)
     except xatlas_charts.PackError as e:
         raise PackError(str(e), e.minimum) from None
 
@@ -298,7 +310,7 @@ def python_interpreter() -> str:
                       f"{prefix})")
 
 
-def _layout_in_child(p, tri, resolution, padding, poly, max_resolution, cancelled, progress):
+def _layout_in_child(p, tri, resolution, padding, poly, max_resolution, cancelled, progress, texels_per_unit=0.0):
     """:func:`core.xatlas_charts.layout` in a child process, retried with other chart options
     when it crashes. Arrays go through ``.npz`` files in a temporary folder."""
     crashes = []
@@ -309,7 +321,8 @@ def _layout_in_child(p, tri, resolution, padding, poly, max_resolution, cancelle
     for variant in range(CHART_VARIANTS):
         if progress is not None:
             progress("unwrapping (xatlas)" if variant == 0 else f"unwrapping again with chart options {variant}")
-        request = dict(resolution=resolution, padding=padding, max_resolution=max_resolution, variant=variant)
+        request = dict(resolution=resolution, padding=padding, max_resolution=max_resolution, variant=variant,
+                       texels_per_unit=texels_per_unit)
         answer, out = ask_child(request, arrays, cancelled, limit, "pdic-unwrap-")
         if answer is None:
             crashes.append(out)

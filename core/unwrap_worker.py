@@ -50,7 +50,8 @@ def main(folder: Path) -> None:
         poly = data["polygon"] if "polygon" in data.files else None
     try:
         out = charts.layout(p, tri, int(request["resolution"]), int(request["padding"]), poly,
-                            int(request["max_resolution"]), int(request["variant"]))
+                            int(request["max_resolution"]), int(request["variant"]),
+                            float(request.get("texels_per_unit", 0.0)))
     except charts.PackError as e:
         status = dict(error="PackError", message=str(e), minimum=e.minimum)
     except ValueError as e:

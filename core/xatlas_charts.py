@@ -19,7 +19,12 @@
    [0, 1] of the *requested* resolution, so chart padding stays exactly
    ``padding`` texels and texels stay square. When no scale fits (many small
    charts: each takes at least a 4x4 block plus padding) and growing is allowed,
-   the map grows by :data:`GROWTH` until the charts pack.
+   the map grows by :data:`GROWTH` until the charts pack. With a texel density
+   (``texels_per_unit``) the map is first made as large as the charts need at that
+   density (:func:`side_at_density`): a map sized from the surface area alone cannot
+   hold them (padding and the 4x4 blocks of small charts take part of every map), and
+   xatlas would scale every chart down to fit (the occluded building of the bench at
+   4 texels/m: its large walls at 0.94 per metre).
 4. **Overlap repair.** xatlas can fold a chart onto itself where surfaces are
    stacked (coplanar faces with their own vertices, differently triangulated:
    12 texel centres on Sponza) or duplicated. Every polygon whose UV triangles
@@ -70,11 +75,14 @@ def chart_options(variant: int) -> "xatlas.ChartOptions":
     return co
 
 
-def layout(p, tri, resolution: int, padding: int, poly, max_resolution: int = 0, variant: int = 0) -> dict:
+def layout(p, tri, resolution: int, padding: int, poly, max_resolution: int = 0, variant: int = 0,
+           texels_per_unit: float = 0.0) -> dict:
     """Charts, polygon fix, packing and overlap repair of one mesh (see the module docstring).
 
     p : (V, 3) float64, tri : (t, 3) int64, poly : (t,) int64 or None.
     max_resolution : grow the map up to this size when the charts do not fit (0: never grow).
+    texels_per_unit : texel density to hold (texels per unit of ``p``); the map grows past
+        ``resolution`` (up to ``max_resolution``) until the charts fit at it. 0: fit ``resolution``.
 
     Returns a dict: uv (t, 3, 2) float32 in [0, 1], chart (t,) int32, chart_count,
     utilization, polygons_fixed, polygons_detached, resolution (the map's side in texels).
@@ -103,10 +111,17 @@ def layout(p, tri, resolution: int, padding: int, poly, max_resolution: int = 0,
 
     # -- pass 2: repack the same charts to fit (and fill) the requested resolution
     fill = max(width, height) / resolution
+    start = tpu / fill
+    if texels_per_unit > 0:
+        side = side_at_density(p, xref, index, uv_texel, valid, resolution, padding, texels_per_unit,
+                               max_resolution)
+        if side > resolution:  # start at the density: it fits and fills the grown side
+            resolution, start = side, texels_per_unit
+            fill = max(width, height) / resolution
     chart = np.where(valid, chart_of_vertex[index[:, 0]], -1)
     if fixed or fill > 1.0 or fill < GOOD_FILL:
         index, xref, uv_texel, chart_count, chart, tpu, resolution = _pack_growing(
-            p, xref, index, uv_texel, valid, resolution, padding, tpu / fill, max_resolution)
+            p, xref, index, uv_texel, valid, resolution, padding, start, max_resolution)
 
     # -- overlap repair: polygons folded onto others become islands, then pack again
     polygon = poly if poly is not None else np.arange(len(tri))
@@ -198,6 +213,27 @@ def _plane_basis(normal):
     return u, np.cross(n, u)
 
 
+def side_at_density(p, xref, index, uv_texel, valid, resolution: int, padding: int, texels_per_unit: float,
+                    max_resolution: int) -> int:
+    """The map's side that holds the charts at ``texels_per_unit`` (one xatlas packing of any
+    size), rounded up to 4 texels: at least ``resolution``, at most ``max(max_resolution,
+    resolution)`` (past that the charts are scaled down to fit, as without a density)."""
+    atlas = _pack(p, xref, index, uv_texel, valid, padding, texels_per_unit)
+    needed = 4 * math.ceil(max(atlas.width, atlas.height) / 4)
+    return int(min(max(needed, resolution), max(max_resolution, resolution)))
+
+
+def _pack(p, xref, index, uv_texel, valid, padding: int, texels_per_unit: float) -> "xatlas.Atlas":
+    """The charts packed again (xatlas ``use_input_mesh_uvs``) at ``texels_per_unit`` into one
+    atlas of whatever size they need."""
+    atlas = xatlas.Atlas()
+    atlas.add_mesh(p[xref].astype(np.float32), index[valid].astype(np.uint32), None, uv_texel.astype(np.float32))
+    chart_options = xatlas.ChartOptions()
+    chart_options.use_input_mesh_uvs = True
+    atlas.generate(chart_options, pack_options(0, padding, texels_per_unit))  # 0: one atlas, any size
+    return atlas
+
+
 def _pack_growing(p, xref, index, uv_texel, valid, resolution, padding, tpu, max_resolution):
     """:func:`_repack` at ``resolution``, growing the map by :data:`GROWTH` up to
     ``max_resolution`` while the charts do not fit. Returns (index, xref, uv_texel,
@@ -229,19 +265,12 @@ def _repack(p, xref, index, uv_texel, valid, resolution, padding, tpu):
     """Pack the given charts again (xatlas ``use_input_mesh_uvs``) so the atlas fits
     ``resolution`` squared; returns (index, xref, uv_texel, chart_count, chart, texels per unit)
     with UVs in texels of ``resolution``. Raises :class:`PackError` if no scale fits."""
-    positions = p[xref].astype(np.float32)
-    uvs = uv_texel.astype(np.float32)
-    faces = index[valid].astype(np.uint32)
-    chart_options = xatlas.ChartOptions()
-    chart_options.use_input_mesh_uvs = True
     # Search texels-per-unit: the largest tried that fits, stopping once the atlas
     # fills >= GOOD_FILL of the side. Packing size is not linear in the scale
     # (padding and 4x4 block alignment are fixed), hence a search, not one rescale.
     best, best_tpu, fits, too_big = None, 0.0, None, None
     for _ in range(MAX_PACK_ATTEMPTS):
-        atlas = xatlas.Atlas()
-        atlas.add_mesh(positions, faces, None, uvs)
-        atlas.generate(chart_options, pack_options(0, padding, tpu))  # 0: one atlas, any size
+        atlas = _pack(p, xref, index, uv_texel, valid, padding, tpu)
         size = max(atlas.width, atlas.height)
         if size <= resolution:
             if tpu > best_tpu:

@@ -291,6 +291,7 @@ class BakeJob:
         self.unwraps: dict[str, dict] = {}
         self.objects: list = []
         self.resolutions: dict[str, tuple[int, int]] = {}
+        self.resolution_overridden: set = set()  # meshes whose map side a user's override sets: not grown
         self.plan: writeback.OutputPlan | None = None
         self.meshes: dict = {}          # mesh name -> bpy mesh (main thread only)
         self.mesh_users: dict = {}      # mesh name -> names of the objects baked with it
@@ -417,6 +418,7 @@ class BakeJob:
             override = getattr(_object_settings(obj), "resolution", 0)
             if override > 0:
                 res = int(override)
+                self.resolution_overridden.add(mesh_name)
             else:
                 area = tris.surface_area(tuple(obj.matrix_world.to_scale()))
                 try:
@@ -446,35 +448,38 @@ class BakeJob:
         s = self.settings
         for i, (mesh_name, users) in enumerate(self.mesh_users.items()):
             tris, res = self.triangles[mesh_name], self.resolutions[users[0]][0]
+            density = 0.0 if mesh_name in self.resolution_overridden else s.texel_density
             try:
                 result = unwrap.unwrap(tris.positions * self.scales[mesh_name], tris.triangles, res, s.padding,
                                        cache_dir=self.cache_dir, triangle_polygon=tris.polygon,
-                                       max_resolution=max(s.max_resolution, res),
+                                       max_resolution=max(s.max_resolution, res), texels_per_unit=density,
                                        **_unwrap_hooks(progress, mesh_name, i / len(self.meshes)))
                 uv_loop, conflicts = unwrap.loop_uvs(result.uv, tris.loops, tris.loop_count)
             except (ValueError, RuntimeError) as e:  # bad geometry (DegenerateMeshError), or xatlas failing to pack
                 raise BakeError(f"cannot unwrap mesh {mesh_name!r} (object {users[0]!r}): {e}") from e
             self.warnings += list(result.warnings)
-            if result.resolution != res:  # the charts did not fit: the map grew until they did
-                self.warnings.append(f"mesh {mesh_name!r}: its charts do not fit {res}x{res}; light map "
-                                     f"{result.resolution}x{result.resolution} instead")
+            if result.resolution != res:  # the map grew until the charts fit (at the texel density)
+                if not density:
+                    self.warnings.append(f"mesh {mesh_name!r}: its charts do not fit {res}x{res}; light map "
+                                         f"{result.resolution}x{result.resolution} instead")
                 for name in users:
                     self.resolutions[name] = (result.resolution, result.resolution)
             if conflicts:
                 self.warnings.append(f"mesh {mesh_name!r}: {conflicts} polygon corners got split UVs")
             self.uv_loops[mesh_name] = uv_loop
-            density = unwrap.achieved_texel_density(result.uv, tris.surface_area(self.scales[mesh_name]),
-                                                    result.resolution)
-            if s.texel_density > 0 and density < TEXEL_DENSITY_WARN * s.texel_density:
-                self.warnings.append(f"mesh {mesh_name!r}: its texels cover {density:.3g} per unit of the "
-                                     f"{s.texel_density:g} asked (charts fill {result.utilization:.0%} of its "
-                                     f"{result.resolution}x{result.resolution} map); raise Texel Density for "
-                                     f"finer light maps")
+            achieved = unwrap.achieved_texel_density(result.uv, tris.surface_area(self.scales[mesh_name]),
+                                                     result.resolution)
+            if density and achieved < TEXEL_DENSITY_WARN * density:
+                self.warnings.append(f"mesh {mesh_name!r}: its texels cover {achieved:.3g} per unit of the "
+                                     f"{density:g} asked: at that density its charts need a map larger than "
+                                     f"{result.resolution}x{result.resolution}, the largest light map")
             for name in users:
                 self.unwraps[name] = {"charts": result.chart_count, "utilization": round(result.utilization, 4),
                                       "unwrap_cached": result.from_cache, "resolution_requested": res,
-                                      "texel_density_achieved": round(density, 4)}
+                                      "texel_density_achieved": round(achieved, 4)}
             progress.update((i + 1) / len(self.meshes))
+        largest = max(self.resolutions, key=lambda n: self.resolutions[n][0])
+        check_memory(s, self.texel_count, f"{largest!r} at {self.resolutions[largest][0]}^2")  # maps may have grown
 
     # ----------------------------------------------------------------- step 3: extract (main)
     def _extract(self) -> None:

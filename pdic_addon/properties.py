@@ -66,8 +66,9 @@ class PDIC_SceneSettings(bpy.types.PropertyGroup):
                                 description="Phi columns of the stratified hemisphere used to refine records "
                                             "(pass 3, Custom quality). Typical 2x the rows")
     texel_density: FloatProperty(name="Texel Density", default=DEFAULTS.texel_density, min=0.0, soft_max=256.0,
-                                 description="Texels per scene unit (0 = use the default resolution). Typical 8-64 "
-                                             "for metre-scale scenes")
+                                 description="Texels per scene unit: each map grows until its charts fit at this "
+                                             "density (0 = use the default resolution). Typical 8-64 for "
+                                             "metre-scale scenes")
     default_resolution: IntProperty(name="Resolution", default=DEFAULTS.default_resolution, min=8, max=8192,
                                     description="Light-map width and height of an object without an override, "
                                                 "when the texel density is 0")

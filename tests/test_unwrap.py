@@ -50,6 +50,53 @@ def test_density_resolution_is_rounded_up_to_multiple_of_four_and_clamped():
     assert choose_resolution(1e6, 64.0, 256, 16, 4096) == 4096
 
 
+def floor_with_posts(posts: int = 24):
+    """A 6 m x 6 m floor (two triangles) and ``posts`` separate 5 cm cubes on it: each cube face
+    becomes a chart of a texel or two plus its gutter, as a building's railings and thin walls do."""
+    verts = [(0, 0, 0), (6, 0, 0), (6, 6, 0), (0, 6, 0)]
+    tris = [(0, 1, 2), (0, 2, 3)]
+    faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    for k in range(posts):
+        x, y, base = 0.5 + 0.7 * (k % 8), 0.5 + 0.7 * (k // 8), len(verts)
+        verts += [(x + 0.05 * (i >> 2 & 1), y + 0.05 * (i >> 1 & 1), 0.05 * (i & 1)) for i in range(8)]
+        for a, b, c, d in faces:
+            tris += [(base + a, base + b, base + c), (base + a, base + c, base + d)]
+    return np.asarray(verts, np.float64), np.asarray(tris, np.int64)
+
+
+def triangle_densities(result, positions, triangles):
+    """Texels per unit of each triangle of an unwrap: sqrt(UV area in texels / world area)."""
+    uv = result.uv.astype(np.float64) * result.resolution
+    t = positions[triangles]
+    world = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+    texels = 0.5 * np.abs(np.cross(uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]))
+    return np.sqrt(texels / world)
+
+
+def test_a_texel_density_is_held_by_growing_the_map():
+    """Sized from the surface area alone, the map cannot hold many small charts with their gutters:
+    fitted into it, every chart is scaled down and the floor gets a fraction of the density asked.
+    With ``texels_per_unit`` the map grows until the charts fit at the density, up to the largest
+    allowed map."""
+    p, t = floor_with_posts()
+    density = 16.0
+    t_world = p[t]
+    area = 0.5 * np.linalg.norm(np.cross(t_world[:, 1] - t_world[:, 0], t_world[:, 2] - t_world[:, 0]), axis=1).sum()
+    res = choose_resolution(area, density, 256, 16, 4096)
+    fitted = unwrap(p, t, res, 2, max_resolution=4096)
+    assert fitted.resolution == res
+    assert triangle_densities(fitted, p, t)[:2].max() < 0.6 * density  # the floor, scaled down
+    held = unwrap(p, t, res, 2, max_resolution=4096, texels_per_unit=density)
+    assert held.resolution > res and held.resolution % 4 == 0
+    assert triangle_densities(held, p, t).min() >= 0.99 * density
+    assert not overlapping(held.uv, held.resolution, held.resolution).any()
+    capped = unwrap(p, t, res, 2, max_resolution=res, texels_per_unit=density)
+    assert capped.resolution == res  # no larger map allowed: fitted as without a density
+    assert triangle_densities(capped, p, t)[:2].max() < 0.6 * density
+    with pytest.raises(ValueError, match="texels per unit"):
+        unwrap(p, t, res, 2, texels_per_unit=float("nan"))
+
+
 # --------------------------------------------------------------------------- layout
 def test_unwrap_fits_requested_resolution_without_chart_overlap():
     p, t, _, _ = quad_grid(24, wavy)
