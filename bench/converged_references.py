@@ -13,6 +13,10 @@ subtracts it (bench/run.py ``noise_corrected_error``). Written to bench/referenc
   occluded building (bench/scenes.py), in the add-on's ``PDIC_Lightmap`` at ``density`` texels/m:
   ``a_*``, ``b_*``, ``cov_*``, ``seconds``, ``noise`` (relative, of one bake). The core scene the
   add-on extracted (same UVs) is pickled to bench/results/converged/{scene}.pkl for PDIC bakes.
+  Their maps are sized from the surface area, as the add-on did up to session 16: the charts
+  fitted into that side hold fewer texels per metre than ``density`` (the building's walls 0.94).
+- ``occluded_held_one_d4_...``: the building as the add-on bakes it now at 4 texels/m, its map
+  grown until the charts hold that density (268^2 instead of 164^2).
 """
 from __future__ import annotations
 
@@ -41,8 +45,10 @@ SCENES = ROOT / "bench" / "results" / "converged"
 BOUNCES = 64
 """Cycles diffuse (and total) bounces: converged (Sponza warms up to 16 diffuse bounces)."""
 PLAN = {"cornell": dict(spp=1024, density=None), "sponza": dict(spp=512, density=4.0),
-        "occluded": dict(spp=2048, density=4.0)}
-"""Samples per bake of each pair (Cornell: 2 x 1024 on a machine shared by six jobs) and texel density (texels/m)."""
+        "occluded": dict(spp=2048, density=4.0), "occluded_held": dict(spp=1024, density=4.0)}
+"""Samples per bake of each pair (Cornell: 2 x 1024 on a machine shared by six jobs) and texel density
+(texels/m); a ``_held`` scene's map holds the density (the add-on's own sizing), the others' are
+sized from the surface area."""
 
 
 def seed_pair(objects, uv: str, sizes: dict, spp: int) -> tuple[list, float]:
@@ -104,10 +110,10 @@ def join(objects: list) -> list:
 
 
 def one_object(name: str, spp: int, density: float, scenes_only: bool = False) -> None:
-    objects = bench_scenes.load_sponza() if name == "sponza" else bench_scenes.load_occluded()
+    objects = bench_scenes.load_sponza() if name.startswith("sponza") else bench_scenes.load_occluded()
     objects = join(objects)
     settings = preset("FINAL", texel_density=density, min_resolution=32)
-    _, scene = bench_scenes.prepare(objects, settings, SCENES / "cache" / name)
+    _, scene = bench_scenes.prepare(objects, settings, SCENES / "cache" / name, area_sized=not name.endswith("_held"))
     SCENES.mkdir(parents=True, exist_ok=True)
     (SCENES / f"{name}.pkl").write_bytes(pickle.dumps(scene))
     from pdic.pdic_addon.uvmaps import LIGHTMAP_UV

@@ -121,12 +121,17 @@ def fit_resolutions(objects: list, settings, cache_dir: Path) -> dict:
     return chosen
 
 
-def prepare(objects: list, settings, cache_dir: Path):
-    """The add-on's prepare step (unwrap with a cache folder, extract): (job, core scene)."""
+def prepare(objects: list, settings, cache_dir: Path, area_sized: bool = True):
+    """The add-on's prepare step (unwrap with a cache folder, extract): (job, core scene).
+
+    area_sized : each object's map side from its surface area (:func:`fit_resolutions`, as
+        resolution overrides), the bench's scenes since session 9; False: the add-on's own
+        sizing, which grows a map until its charts hold ``settings.texel_density``."""
     from pdic.pdic_addon.job import BakeJob
 
     cache_dir.mkdir(parents=True, exist_ok=True)
-    fit_resolutions(objects, settings, cache_dir / "unwrap")
+    if area_sized:
+        fit_resolutions(objects, settings, cache_dir / "unwrap")
     job = BakeJob(bpy.context, settings, objects=objects, output_folder=str(cache_dir / "out"),
                   cache_dir=cache_dir / "unwrap")
     job.prepare()
