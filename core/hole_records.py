@@ -22,21 +22,23 @@ from .interpolation import interpolate
 from .irradiance_cache import CacheParameters, IrradianceCache, cache_for_holes
 from .refinement import GatherSources, refine_records
 from .settings import BakeSettings
-from .validity import overrule_by_photons, texel_validity
+from .validity import indirect_weights, overrule_by_photons, texel_validity
 
 
 def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: GatherSources | None,
-                       cache: IrradianceCache, points, texel_size: float, stream: int, params: CacheParameters,
-                       settings: BakeSettings, executor: Executor, progress: Progress, stats
-                       ) -> tuple[np.ndarray, IrradianceCache]:
-    """Texel validity, then Equation 3 with hole records for one target: (E (n, 3), its hole records).
+                       cache: IrradianceCache, target_index: int, points, texel_size: float, stream: int,
+                       params: CacheParameters, settings: BakeSettings, executor: Executor, progress: Progress,
+                       stats) -> tuple[np.ndarray, IrradianceCache, np.ndarray]:
+    """Texel validity, then Equation 3 with hole records for one target: (E (n, 3), its hole records,
+    the samples' shares of their texels' indirect light (n,), :func:`core.validity.indirect_weights`).
 
-    points : the target's :class:`~core.texels.TexelPoints`; texel_size : world size of one texel.
+    target_index : the target's index in ``scene.targets``; points : its
+    :class:`~core.texels.TexelPoints`; texel_size : world size of one texel.
     sources : what refining hole records reads (Final quality), None for Preview.
     """
     E = np.zeros((len(points), 3))
     if density is None or len(points) == 0:
-        return E, IrradianceCache()
+        return E, IrradianceCache(), points.weight.astype(np.float64)
     progress.begin("Texel validity")
     with stats.stage("validity"):
         if settings.deviations.texel_validity:  # deviation: texel-validity, docs/DEVIATIONS.md
@@ -47,7 +49,9 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
         overruled = 0
         if settings.deviations.photon_evidence:  # deviation: photon-evidence, docs/DEVIATIONS.md
             overruled = overrule_by_photons(inside, caster, density, points.p, points.n_geometric, params.R_min)
-    stats.add(texel_samples_inside_geometry=int(inside.sum()), validity_rays=rays,
+        weights, footprint_rays = indirect_weights(scene, caster, density, target_index, points, inside, settings,
+                                                   params.R_min, stream)
+    stats.add(texel_samples_inside_geometry=int(inside.sum()), validity_rays=rays + footprint_rays,
               texel_samples_photon_evidence=overruled)
     valid = np.flatnonzero(~inside)
     progress.begin("Interpolating the cache at texels")
@@ -66,7 +70,7 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
             E[valid[fine[covered]]] = E_fine[covered]
     stats.add(texel_points_interpolated=len(merged) + len(fine), texel_points_unfilled=filled.unfilled,
               **{f"holes_{key}": value for key, value in filled.counters.items()})
-    return E, filled.cache.take(slice(len(cache), None))
+    return E, filled.cache.take(slice(len(cache), None)), weights
 
 
 def _record_visibility(caster, params: CacheParameters):

@@ -19,7 +19,7 @@ def write_lightmaps(scene, targets, padding: int, progress, stats) -> dict:
     with stats.stage("dilate"):
         for target, t in zip(scene.targets, targets):
             direct_img = texel_stage.splat(t.E_direct, t.points, t.raster) / np.pi
-            indirect_img = texel_stage.splat(t.E_indirect, t.points, t.raster) / np.pi
+            indirect_img = texel_stage.splat(t.E_indirect, t.points, t.raster, weight=t.indirect_weight) / np.pi
             rgb, coverage = dilate((direct_img + indirect_img).astype(np.float32), t.raster.coverage, padding + 2)
             rgba = np.concatenate([rgb, coverage[..., None].astype(np.float32)], axis=2)
             out["lightmaps"][target.name] = finite(rgba, target.name)

@@ -161,6 +161,9 @@ class TargetTexels:
     """(n, 3) float64 indirect irradiance at the samples, W/m^2 (zeros until interpolated)."""
     holes: IrradianceCache | None = None
     """Hole records placed for this target (section 3.4)."""
+    indirect_weight: np.ndarray | None = None
+    """(n,) float64 the samples' shares of their texels' indirect light (texel validity: none for a
+    sample inside geometry); None until the indirect light is interpolated (then ``points.weight``)."""
 
     def __post_init__(self):
         self.E_direct = np.zeros((len(self.points), 3))
@@ -291,19 +294,19 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
                                                         params, settings, run.progress, run.stats))
         return build_cache(run, photons, params)
 
-    def texels(t: TargetTexels):
+    def texels(index: int, t: TargetTexels):
         if not passes:
             passes.append(store.memoise("cache", cache_key, passes_1_to_3))
             passes.append(_hole_sources(run, passes[0], params))
         (cache, _, _), (density, sources) = passes
         shaded.append(t)
-        return indirect_at_texels(run.scene, run.caster(), density, sources, cache, t.points, t.texel_size,
+        return indirect_at_texels(run.scene, run.caster(), density, sources, cache, index, t.points, t.texel_size,
                                   t.stream, params, settings, run.executor, run.progress, run.stats)
 
     shaded: list = []
-    for t in targets:
-        key = store.key("indirect", cache_key, t.key, settings.gradients)
-        t.E_indirect, t.holes = store.memoise("indirect", key, lambda: texels(t))
+    for index, t in enumerate(targets):  # rasterise_targets' list: scene.targets' order
+        key = store.key("indirect", cache_key, t.key, settings.gradients, settings.direct_footprint_side)
+        t.E_indirect, t.holes, t.indirect_weight = store.memoise("indirect", key, lambda: texels(index, t))
     run.stats.set(targets_shaded_indirect=len(shaded))
     cache, photons, lighting = passes[0] if passes else (store.get("cache", cache_key) or (IrradianceCache(), None, None))
     run.stats.set(hole_records=int(sum(len(t.holes) for t in targets if t.holes is not None)))

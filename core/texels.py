@@ -191,12 +191,16 @@ def _blend(b, corners):
     return b[:, 0:1] * corners[:, 0:3] + b[:, 1:2] * corners[:, 3:6] + b[:, 2:3] * corners[:, 6:9]
 
 
-def splat(values: np.ndarray, points: TexelPoints, raster: TargetRaster) -> np.ndarray:
-    """Weighted sum of per-sample values (n, C) into one target's image (height, width, C)."""
+def splat(values: np.ndarray, points: TexelPoints, raster: TargetRaster,
+          weight: np.ndarray | None = None) -> np.ndarray:
+    """Weighted sum of per-sample values (n, C) into one target's image (height, width, C).
+
+    weight : (n,) the samples' shares of their texels; None: ``points.weight``.
+    """
     s = raster.sample_slice
     channels = values.shape[1]
     size = raster.height * raster.width
-    w = points.weight[s].astype(np.float64)
+    w = (points.weight if weight is None else weight)[s].astype(np.float64)
     image = np.stack([np.bincount(points.texel[s], weights=values[s, c] * w, minlength=size)
                       for c in range(channels)], axis=1)
     return image.reshape(raster.height, raster.width, channels)

@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .constants import BACKFACE_FRACTION, EVIDENCE_COS, EVIDENCE_PHOTONS, EVIDENCE_REACH, VALIDITY_RAYS
+from .constants import (BACKFACE_FRACTION, EVIDENCE_COS, EVIDENCE_PHOTONS, EVIDENCE_REACH, STREAM_VALIDITY_FOOTPRINT,
+                        VALIDITY_FOOTPRINT_PER_AXIS, VALIDITY_RAYS)
 from .executor import TEXEL_CHUNK, slices
 from .rays import RayCaster
 from .sampling import cosine_hemisphere, orthonormal_basis
@@ -129,3 +130,44 @@ def reached_by_photons(caster: RayCaster, density, p: np.ndarray, n: np.ndarray,
     seen = caster.sides_visible(np.take(p, point, axis=0), np.take(n, point, axis=0), q, q_n)
     reached[point[seen]] = True
     return reached
+
+
+def indirect_weights(scene, caster, density, target_index: int, points, inside: np.ndarray, settings, R_min: float,
+                     stream: int) -> tuple[np.ndarray, int]:
+    """Each texel sample's share of its texel's indirect light, (n,) float64, and the rays cast.
+
+    Samples inside geometry get none. A texel whose samples straddle a solid's boundary (a floor
+    texel at a wall's foot: some samples under the wall) holds the outside samples' mean times the
+    share of its footprint outside, as Cycles' bake does, whose jittered points inside the wall
+    find no light: the 2x2 samples alone would make that share 0 or 1/2 where it is anything in
+    between (the occluded building at 4 texels/m: texels 1 cm from a wall at half of Cycles' light
+    or twice it). The share is voted at VALIDITY_FOOTPRINT_PER_AXIS^2 jittered points over the
+    footprint Cycles integrates (``settings.direct_footprint_side``), as the samples are.
+    """
+    from .texels import footprint_texel_points
+
+    w = points.weight.astype(np.float64)
+    if not inside.any():
+        return w, 0
+    size = int(points.texel.max()) + 1
+    total = np.bincount(points.texel, weights=w, minlength=size)
+    kept = np.bincount(points.texel, weights=np.where(inside, 0.0, w), minlength=size)
+    outside_share = kept / np.maximum(total, 1e-30)
+    straddling = np.flatnonzero((kept > 0) & (kept < total))
+    rng = np.random.default_rng([settings.seed, STREAM_VALIDITY_FOOTPRINT, stream])
+    fp = footprint_texel_points(scene, target_index, straddling, VALIDITY_FOOTPRINT_PER_AXIS, rng,
+                                settings.direct_footprint_side)
+    rays = 0
+    if len(fp):
+        serial = caster.serial()
+        fp_inside, rays = inside_geometry(serial, serial.face_normals, fp.p, fp.n_geometric,
+                                          np.random.default_rng([settings.seed, STREAM_VALIDITY_FOOTPRINT, stream, 1]))
+        if settings.deviations.photon_evidence:
+            overrule_by_photons(fp_inside, caster, density, fp.p, fp.n_geometric, R_min)
+        fw = fp.weight.astype(np.float64)
+        fp_total = np.bincount(fp.texel, weights=fw, minlength=size)
+        fp_out = np.bincount(fp.texel, weights=np.where(fp_inside, 0.0, fw), minlength=size)
+        reached = fp_total > 0  # a sliver the jittered points all missed keeps its samples' share
+        outside_share[reached] = fp_out[reached] / fp_total[reached]
+    scale = np.divide(total * outside_share, kept, out=np.zeros(size), where=kept > 0)
+    return np.where(inside, 0.0, w * scale[points.texel]), rays
