@@ -32,7 +32,7 @@ STREAM_DIRECT_FOOTPRINT = 13
 ``[seed, 13, target stream, 1, chunk]`` (core/direct_footprint.py)."""
 STREAM_VALIDITY_FOOTPRINT = 15
 """Texel validity over straddling texels' footprints: jitter ``[seed, 15, target stream]``, rays
-``[seed, 15, target stream, 1]`` (core/validity.py ``inside_shares``)."""
+``[seed, 15, target stream, 1]`` (core/validity.py ``indirect_weights``)."""
 STREAM_REFINE_HOLES = 20
 """Pass 3 on hole records of round r: ``[seed, 20 + r, batch]``."""
 STREAM_HIT_GRID = 14
@@ -183,7 +183,7 @@ BACKFACE_FRACTION = 0.5
 """A sample is inside geometry when more than this fraction of its rays hit back faces."""
 VALIDITY_FOOTPRINT_PER_AXIS = 4
 """Jittered points per axis (16 per texel) that measure how much of a texel straddling a solid's
-boundary (a floor texel at a wall's foot) lies inside it (core/validity.py ``inside_shares``)."""
+boundary (a floor texel at a wall's foot) lies inside it (core/validity.py ``indirect_weights``)."""
 EVIDENCE_PHOTONS = 8
 """Nearest photons within R_min asked whether light reaches a sample the back-face vote put inside
 geometry (deviation: photon-evidence); one that sees the sample's side overrules the vote."""
