@@ -15,8 +15,9 @@ subtracts it (bench/run.py ``noise_corrected_error``). Written to bench/referenc
   add-on extracted (same UVs) is pickled to bench/results/converged/{scene}.pkl for PDIC bakes.
   Their maps are sized from the surface area, as the add-on did up to session 16: the charts
   fitted into that side hold fewer texels per metre than ``density`` (the building's walls 0.94).
-- ``occluded_held_one_d4_...``: the building as the add-on bakes it now at 4 texels/m, its map
-  grown until the charts hold that density (268^2 instead of 164^2).
+- ``occluded_held_one_d4_...``, ``sponza_held_one_d4_...``: the building and Sponza as the add-on
+  bakes them now at 4 texels/m, their maps grown until the charts hold that density (272^2 instead
+  of 164^2, 796^2 instead of 696^2).
 """
 from __future__ import annotations
 
@@ -45,7 +46,8 @@ SCENES = ROOT / "bench" / "results" / "converged"
 BOUNCES = 64
 """Cycles diffuse (and total) bounces: converged (Sponza warms up to 16 diffuse bounces)."""
 PLAN = {"cornell": dict(spp=1024, density=None), "sponza": dict(spp=512, density=4.0),
-        "occluded": dict(spp=2048, density=4.0), "occluded_held": dict(spp=1024, density=4.0)}
+        "occluded": dict(spp=2048, density=4.0), "occluded_held": dict(spp=1024, density=4.0),
+        "sponza_held": dict(spp=512, density=4.0)}
 """Samples per bake of each pair (Cornell: 2 x 1024 on a machine shared by six jobs) and texel density
 (texels/m); a ``_held`` scene's map holds the density (the add-on's own sizing), the others' are
 sized from the surface area."""
