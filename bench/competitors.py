@@ -169,16 +169,6 @@ def join(objects: list):
     return bpy.context.view_layer.objects.active
 
 
-def area_resolution(obj, settings) -> int:
-    """The light-map side ``settings.texel_density`` gives ``obj``'s world surface area."""
-    from pdic.core import unwrap
-    from pdic.pdic_addon import uvmaps
-
-    area = uvmaps.mesh_triangles(obj.data).surface_area(tuple(obj.matrix_world.to_scale()))
-    return unwrap.choose_resolution(area, settings.texel_density, settings.default_resolution,
-                                    settings.min_resolution, settings.max_resolution)
-
-
 def load_scene(spec: SceneSpec, work: Path):
     """(the joined Blender object, the add-on's core scene) with ``PDIC_Lightmap`` UVs at the spec's size."""
     import bpy
@@ -191,7 +181,7 @@ def load_scene(spec: SceneSpec, work: Path):
               "occluded": bench_scenes.load_occluded}[spec.loader]
     obj = join(loader())
     settings = preset("FINAL", texel_density=spec.texel_density)
-    obj.pdic.resolution = spec.resolution or area_resolution(obj, settings)
+    obj.pdic.resolution = spec.resolution or bench_scenes.area_resolution(obj, settings)
     work.mkdir(parents=True, exist_ok=True)
     job = BakeJob(bpy.context, settings, objects=[obj], output_folder=str(work / "out"), cache_dir=work / "unwrap")
     job.prepare()

@@ -90,6 +90,17 @@ def load_occluded() -> list:
 
 
 # --------------------------------------------------------------------------- to the core
+def area_resolution(obj, settings, tris=None) -> int:
+    """The light-map side ``settings`` give ``obj``'s world surface area (``tris``: its
+    ``uvmaps.mesh_triangles``, read when None): the add-on's sizing up to session 16."""
+    from pdic.core import unwrap
+    from pdic.pdic_addon import uvmaps
+
+    tris = tris if tris is not None else uvmaps.mesh_triangles(obj.data)
+    return unwrap.choose_resolution(tris.surface_area(tuple(obj.matrix_world.to_scale())), settings.texel_density,
+                                    settings.default_resolution, settings.min_resolution, settings.max_resolution)
+
+
 def fit_resolutions(objects: list, settings, cache_dir: Path) -> dict:
     """Per-object resolution overrides: the settings' choice, doubled until xatlas packs the charts.
 
@@ -104,9 +115,7 @@ def fit_resolutions(objects: list, settings, cache_dir: Path) -> dict:
     for obj in objects:
         tris = uvmaps.mesh_triangles(obj.data)
         scale = np.asarray(tuple(obj.matrix_world.to_scale()), np.float64)
-        res = unwrap.choose_resolution(tris.surface_area(tuple(scale)), settings.texel_density,
-                                       settings.default_resolution, settings.min_resolution,
-                                       settings.max_resolution)
+        res = area_resolution(obj, settings, tris)
         while True:
             try:
                 unwrap.unwrap(tris.positions * scale, tris.triangles, res, settings.padding, cache_dir=cache_dir,

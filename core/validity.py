@@ -26,6 +26,7 @@ from .constants import (BACKFACE_FRACTION, EVIDENCE_COS, EVIDENCE_PHOTONS, EVIDE
 from .executor import TEXEL_CHUNK, slices
 from .rays import RayCaster
 from .sampling import cosine_hemisphere, orthonormal_basis
+from .texels import footprint_texel_points
 
 LATER_ROUND = 2
 """Rays per sample in each round after the first."""
@@ -144,8 +145,6 @@ def indirect_weights(scene, caster, density, target_index: int, points, inside: 
     or twice it). The share is voted at VALIDITY_FOOTPRINT_PER_AXIS^2 jittered points over the
     footprint Cycles integrates (``settings.direct_footprint_side``), as the samples are.
     """
-    from .texels import footprint_texel_points
-
     w = points.weight.astype(np.float64)
     if not inside.any():
         return w, 0

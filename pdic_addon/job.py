@@ -348,12 +348,15 @@ class BakeJob:
         if self.atlas_size:
             atlas_bake.refuse_shared_meshes(self.mesh_users)
             self.atlas_density = atlas_bake.density_scales(self)
-        largest = max(self.resolutions, key=lambda n: self.resolutions[n][0])
-        check_memory(self.settings, self.texel_count, f"{largest!r} at {self.resolutions[largest][0]}^2")
+        self._check_memory()
         if self.settings.indirect and self.settings.photons == 0:
             self.warnings.append("Photons is 0: the light maps hold direct light only (no indirect light)")
         # Joined objects (Ctrl+J) carry PDIC copies as mesh materials: give the user's back first.
         writeback.release_mesh_copies(self.txn)
+
+    def _check_memory(self) -> None:
+        largest = max(self.resolutions, key=lambda n: self.resolutions[n][0])
+        check_memory(self.settings, self.texel_count, f"{largest!r} at {self.resolutions[largest][0]}^2")
 
     def _candidates(self) -> list:
         if self.explicit_objects is not None:
@@ -478,8 +481,7 @@ class BakeJob:
                                       "unwrap_cached": result.from_cache, "resolution_requested": res,
                                       "texel_density_achieved": round(achieved, 4)}
             progress.update((i + 1) / len(self.meshes))
-        largest = max(self.resolutions, key=lambda n: self.resolutions[n][0])
-        check_memory(s, self.texel_count, f"{largest!r} at {self.resolutions[largest][0]}^2")  # maps may have grown
+        self._check_memory()  # maps may have grown to hold the texel density
 
     # ----------------------------------------------------------------- step 3: extract (main)
     def _extract(self) -> None:
