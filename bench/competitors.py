@@ -292,7 +292,7 @@ def pdic_runs(scene, name: str, refs: dict, mask, save_to: Path | None = None, i
         images = {"all": result.lightmaps[name][..., :3], "indirect": result.indirect[name]}
         counters = result.stats.get("counters", {})
         for kind, image in images.items():
-            err = errors(image, refs[kind], mask & result.centre_inside[name], interior)
+            err = errors(image, refs[kind], mask & result.centre_inside[name] & ~result.buried[name], interior)
             rows.append(dict(method=method, kind=kind, wall=wall, cpu=cpu, **_error_fields(err),
                              mean_ratio=err["mean_ratio"], records=counters.get("records_total"),
                              stage_seconds=result.stats.get("seconds", {})))

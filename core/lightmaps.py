@@ -7,27 +7,49 @@ from . import texels as texel_stage
 from .dilate import dilate
 
 
-def write_lightmaps(scene, targets, padding: int, progress, stats) -> dict:
-    """Per target name: RGBA light map, centre-inside mask, direct and indirect E / pi images.
+def write_lightmaps(scene, targets, padding: int, progress, stats, fill_buried: bool = True) -> dict:
+    """Per target name: RGBA light map, centre-inside and buried masks, direct and indirect E / pi images.
 
     targets : the pipeline's per-target work (points, raster, E_direct, E_indirect), in
-    ``scene.targets`` order. Returns the :class:`~core.pipeline.BakeResult` fields ``lightmaps``,
-    ``centre_inside``, ``direct``, ``indirect`` and ``coverage``.
+    ``scene.targets`` order. fill_buried : buried texels (:func:`buried_texels`) take their
+    neighbours' light by dilation (deviation: buried-texels). Returns the
+    :class:`~core.pipeline.BakeResult` fields ``lightmaps``, ``centre_inside``, ``buried``, ``direct``,
+    ``indirect`` and ``coverage``.
     """
     progress.begin("Writing light maps")
-    out = {"lightmaps": {}, "centre_inside": {}, "direct": {}, "indirect": {}, "coverage": {}}
+    out = {"lightmaps": {}, "centre_inside": {}, "buried": {}, "direct": {}, "indirect": {}, "coverage": {}}
     with stats.stage("dilate"):
         for target, t in zip(scene.targets, targets):
             direct_img = texel_stage.splat(t.E_direct, t.points, t.raster) / np.pi
             indirect_img = texel_stage.splat(t.E_indirect, t.points, t.raster, weight=t.indirect_weight) / np.pi
-            rgb, coverage = dilate((direct_img + indirect_img).astype(np.float32), t.raster.coverage, padding + 2)
+            buried = buried_texels(t)
+            baked = t.raster.coverage & ~buried if fill_buried else t.raster.coverage
+            rgb, coverage = dilate((direct_img + indirect_img).astype(np.float32), baked, padding + 2)
             rgba = np.concatenate([rgb, coverage[..., None].astype(np.float32)], axis=2)
             out["lightmaps"][target.name] = finite(rgba, target.name)
             out["centre_inside"][target.name] = t.raster.centre_inside
+            out["buried"][target.name] = buried
             out["coverage"][target.name] = t.raster.coverage
             out["direct"][target.name] = direct_img.astype(np.float32)
             out["indirect"][target.name] = indirect_img.astype(np.float32)
+    stats.add(texels_buried=int(sum(b.sum() for b in out["buried"].values())))
     return out
+
+
+def buried_texels(t) -> np.ndarray:
+    """(H, W) bool covered texels whose whole footprint lies inside closed geometry: a floor's texels
+    under a wall standing on it (texel validity gave every sample, and every footprint point of a
+    straddling texel, no share of the indirect light: :func:`core.validity.indirect_weights`).
+
+    No camera sees them, but a bilinear filter reads them for the visible floor's last half texel
+    at the wall's foot: Cycles bakes them black, which draws a dark line along every wall in a
+    game engine. All False when the indirect light was not baked (texel validity did not run).
+    """
+    raster = t.raster
+    if t.indirect_weight is None:
+        return np.zeros((raster.height, raster.width), bool)
+    share = texel_stage.splat(np.ones((len(t.points), 1)), t.points, raster, weight=t.indirect_weight)[..., 0]
+    return raster.coverage & (share <= 0.0)
 
 
 def finite(image: np.ndarray, name: str) -> np.ndarray:

@@ -54,6 +54,9 @@ class BakeResult:
         Direct+Indirect without colour), alpha = 1 where the texel is covered or dilated.
     centre_inside : target name -> (H, W) bool, texels whose centre lies on a triangle
         (the texels Cycles bakes; comparisons use this mask).
+    buried : target name -> (H, W) bool, covered texels whose whole footprint lies inside closed
+        geometry (a floor under a wall): Cycles bakes them black, the light map holds their
+        neighbours' light (deviation: buried-texels); comparisons leave them out.
     stats : JSON-ready statistics (see core/manifest.py).
     cache : the irradiance cache (None when indirect light was not baked).
     photons : the photon map (None when indirect light was not baked).
@@ -64,6 +67,7 @@ class BakeResult:
 
     lightmaps: dict = field(default_factory=dict)
     centre_inside: dict = field(default_factory=dict)
+    buried: dict = field(default_factory=dict)
     stats: dict = field(default_factory=dict)
     cache: IrradianceCache | None = None
     photons: PhotonMap | None = None
@@ -106,7 +110,8 @@ def _bake(run: "_Run") -> BakeResult:
     if run.settings.indirect and run.settings.photons > 0:
         params = cache_parameters(run.scene, [t.raster for t in targets], run.settings)
         cache, photons, lighting = indirect_at_targets(run, targets, params)
-    maps = write_lightmaps(run.scene, targets, run.settings.padding, run.progress, run.stats)
+    maps = write_lightmaps(run.scene, targets, run.settings.padding, run.progress, run.stats,
+                           run.settings.deviations.buried_texels)
     return _finish(run, BakeResult(**maps, cache=cache, photons=photons, photon_lighting=lighting))
 
 

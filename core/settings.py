@@ -80,6 +80,10 @@ class Deviations:
     direct_footprint: bool = True
     """Texels a shadow edge crosses take direct light over DIRECT_FOOTPRINT_PER_AXIS^2 jittered points of
     their footprint, as Cycles' bake integrates it (core/direct_footprint.py)."""
+    buried_texels: bool = True
+    """Covered texels whose whole footprint lies inside closed geometry (a floor under a wall) take their
+    neighbours' light by dilation, so a bilinear filter reads no black at a wall's foot; Cycles bakes them
+    black (core/lightmaps.py ``buried_texels``)."""
     transparent_shadows: bool = True
     """Shadow rays and photons pass transmissive triangles (Geometry.transmission), as Cycles'
     transparent shadows; off, every triangle is opaque."""
