@@ -289,10 +289,10 @@ def pdic_runs(scene, name: str, refs: dict, mask, save_to: Path | None = None, i
     for quality in ("FINAL", "PREVIEW"):
         result, wall, cpu = clocked(bake, scene, preset(quality))
         method = f"PDIC {quality.title()}"
-        images = {"all": result.lightmaps[name][..., :3], "indirect": result.indirect[name]}
+        images = {"all": result.as_cycles(name), "indirect": result.indirect[name]}
         counters = result.stats.get("counters", {})
         for kind, image in images.items():
-            err = errors(image, refs[kind], mask & result.centre_inside[name] & ~result.buried[name], interior)
+            err = errors(image, refs[kind], mask & result.centre_inside[name], interior)
             rows.append(dict(method=method, kind=kind, wall=wall, cpu=cpu, **_error_fields(err),
                              mean_ratio=err["mean_ratio"], records=counters.get("records_total"),
                              stage_seconds=result.stats.get("seconds", {})))

@@ -90,15 +90,13 @@ def main(argv=None):
     ref_all = {n: ref_dir[n] + ref_ind[n] for n in ref_dir}
     ref_seconds = ref_dir_seconds + ref_ind_seconds
     names = list(ref_all)
-    lit = {n: cov[n] & ~result.buried[n] for n in names}  # buried texels: black in Cycles, filled in PDIC
-    test_all = np.concatenate([result.lightmaps[n][..., :3][lit[n]] for n in names])
+    test_all = np.concatenate([result.as_cycles(n)[cov[n]] for n in names])
     test_ind = np.concatenate([result.indirect[n][cov[n]] for n in names])
-    r_all = np.concatenate([ref_all[n][lit[n]] for n in names])
+    r_all = np.concatenate([ref_all[n][cov[n]] for n in names])
     r_ind = np.concatenate([ref_ind[n][cov[n]] for n in names])
-    every = np.ones(len(r_all), bool), np.ones(len(r_ind), bool)
+    mask = np.ones(len(r_all), bool)
     print(f"PDIC {args.quality}: {pdic_seconds:.2f} s; Cycles {args.spp} spp: {ref_seconds:.1f} s (all), {ref_ind_seconds:.1f} s (indirect)")
-    print(f"relative RMSE direct+indirect {relative_rmse(test_all, r_all, every[0]):.4f}, "
-          f"indirect {relative_rmse(test_ind, r_ind, every[1]):.4f}")
+    print(f"relative RMSE direct+indirect {relative_rmse(test_all, r_all, mask):.4f}, indirect {relative_rmse(test_ind, r_ind, mask):.4f}")
     print(f"mean ratio all {test_all.mean() / r_all.mean():.4f}, indirect {test_ind.mean() / r_ind.mean():.4f}")
     print(result.stats)
     return result

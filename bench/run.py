@@ -88,12 +88,6 @@ def relative_rmse(test: dict, ref: dict, masks: dict) -> float:
     return float(np.sqrt(np.mean((t - r) ** 2)) / max(r.mean(), 1e-30))
 
 
-def unburied(masks: dict, result) -> dict:
-    """``masks`` without the texels the bake found buried (``BakeResult.buried``: a floor under a wall,
-    black in Cycles' bake, its neighbours' light in PDIC's map), for comparing light maps."""
-    return {n: m & ~result.buried[n] if n in result.buried else m for n, m in masks.items()}
-
-
 def load_reference():
     ind = np.load(REFERENCE_INDIRECT)
     direct = np.load(REFERENCE_DIRECT)
@@ -134,8 +128,7 @@ def section_errors(quick: bool) -> dict:
         settings = preset(quality, photons=photons, max_bounces=CORNELL_BOUNCES)
         result, seconds = timed(bake, scene, settings)
         run = dict(method=f"PDIC {quality.title()}", quality=quality, photons=photons, seconds=seconds,
-                   error_all=relative_rmse({n: result.lightmaps[n][..., :3] for n in ref_all}, ref_all,
-                                           unburied(masks, result)),
+                   error_all=relative_rmse({n: result.as_cycles(n) for n in ref_all}, ref_all, masks),
                    error_indirect=relative_rmse(result.indirect, ref_ind, masks))
         log("errors", run)
         pdic_runs.append(run)
@@ -371,8 +364,7 @@ def section_tables(quick: bool, errors_ref=None) -> dict:
             s, c = result.stats["seconds"], result.stats["counters"]
             err = None
             if name == "Cornell":
-                err = dict(error_all=relative_rmse({n: result.lightmaps[n][..., :3] for n in ref[0]}, ref[0],
-                                                   unburied(ref[2], result)),
+                err = dict(error_all=relative_rmse({n: result.as_cycles(n) for n in ref[0]}, ref[0], ref[2]),
                            error_indirect=relative_rmse(result.indirect, ref[1], ref[2]))
             else:
                 err = dict(error_indirect=noise_corrected_error(result.indirect, result.centre_inside, pair))

@@ -4,27 +4,36 @@ from __future__ import annotations
 import numpy as np
 
 from . import texels as texel_stage
+from .constants import BURIED_SHARE
 from .dilate import dilate
 
 
-def write_lightmaps(scene, targets, padding: int, progress, stats, fill_buried: bool = True) -> dict:
+def write_lightmaps(scene, targets, padding: int, progress, stats, visible: bool = True) -> dict:
     """Per target name: RGBA light map, centre-inside and buried masks, direct and indirect E / pi images.
 
     targets : the pipeline's per-target work (points, raster, E_direct, E_indirect), in
-    ``scene.targets`` order. fill_buried : buried texels (:func:`buried_texels`) take their
-    neighbours' light by dilation (deviation: buried-texels). Returns the
-    :class:`~core.pipeline.BakeResult` fields ``lightmaps``, ``centre_inside``, ``buried``, ``direct``,
-    ``indirect`` and ``coverage``.
+    ``scene.targets`` order. visible : the light map holds the light of each texel's part outside
+    closed geometry (deviation: buried-texels, :func:`outside_shares`); False: Cycles' texel
+    averages. Returns the :class:`~core.pipeline.BakeResult` fields ``lightmaps``,
+    ``centre_inside``, ``buried``, ``direct``, ``indirect`` and ``coverage``.
     """
     progress.begin("Writing light maps")
     out = {"lightmaps": {}, "centre_inside": {}, "buried": {}, "direct": {}, "indirect": {}, "coverage": {}}
+    partly = 0
     with stats.stage("dilate"):
         for target, t in zip(scene.targets, targets):
             direct_img = texel_stage.splat(t.E_direct, t.points, t.raster) / np.pi
             indirect_img = texel_stage.splat(t.E_indirect, t.points, t.raster, weight=t.indirect_weight) / np.pi
-            buried = buried_texels(t)
-            baked = t.raster.coverage & ~buried if fill_buried else t.raster.coverage
-            rgb, coverage = dilate((direct_img + indirect_img).astype(np.float32), baked, padding + 2)
+            rgb = direct_img + indirect_img
+            share = outside_shares(t)
+            buried = t.raster.coverage & (share < BURIED_SHARE)
+            baked = t.raster.coverage
+            if visible:
+                straddling = baked & ~buried & (share < 1.0 - SHARE_TOLERANCE)
+                rgb[straddling] /= share[straddling, None]
+                baked = baked & ~buried
+                partly += int(straddling.sum())
+            rgb, coverage = dilate(rgb.astype(np.float32), baked, padding + 2)
             rgba = np.concatenate([rgb, coverage[..., None].astype(np.float32)], axis=2)
             out["lightmaps"][target.name] = finite(rgba, target.name)
             out["centre_inside"][target.name] = t.raster.centre_inside
@@ -32,24 +41,29 @@ def write_lightmaps(scene, targets, padding: int, progress, stats, fill_buried: 
             out["coverage"][target.name] = t.raster.coverage
             out["direct"][target.name] = direct_img.astype(np.float32)
             out["indirect"][target.name] = indirect_img.astype(np.float32)
-    stats.add(texels_buried=int(sum(b.sum() for b in out["buried"].values())))
+    stats.add(texels_buried=int(sum(b.sum() for b in out["buried"].values())), texels_partly_buried=partly)
     return out
 
 
-def buried_texels(t) -> np.ndarray:
-    """(H, W) bool covered texels whose whole footprint lies inside closed geometry: a floor's texels
-    under a wall standing on it (texel validity gave every sample, and every footprint point of a
-    straddling texel, no share of the indirect light: :func:`core.validity.indirect_weights`).
+SHARE_TOLERANCE = 1e-6
+"""Outside shares this close to 1 are whole texels (the validity weights' float rounding)."""
 
-    No camera sees them, but a bilinear filter reads them for the visible floor's last half texel
-    at the wall's foot: Cycles bakes them black, which draws a dark line along every wall in a
-    game engine. All False when the indirect light was not baked (texel validity did not run).
+
+def outside_shares(t) -> np.ndarray:
+    """(H, W) float64 the share of each texel's footprint outside closed geometry: 1 on open surface, 0
+    under a wall standing on it, in between at its foot (texel validity's votes over the samples and
+    straddling texels' footprints, :func:`core.validity.indirect_weights`); 1 everywhere when the
+    indirect light was not baked (texel validity did not run).
+
+    The bake's direct and indirect images hold what Cycles bakes there: the footprint's mean, its
+    inside part at 0. No camera sees that part, but a game engine's bilinear filter spreads the
+    texel over the visible floor up to the wall, a dark line along every wall's foot; the light map
+    holds the outside part's light instead (texels mostly inside: their neighbours').
     """
     raster = t.raster
     if t.indirect_weight is None:
-        return np.zeros((raster.height, raster.width), bool)
-    share = texel_stage.splat(np.ones((len(t.points), 1)), t.points, raster, weight=t.indirect_weight)[..., 0]
-    return raster.coverage & (share <= 0.0)
+        return np.ones((raster.height, raster.width))
+    return texel_stage.splat(np.ones((len(t.points), 1)), t.points, raster, weight=t.indirect_weight)[..., 0]
 
 
 def finite(image: np.ndarray, name: str) -> np.ndarray:

@@ -54,9 +54,10 @@ class BakeResult:
         Direct+Indirect without colour), alpha = 1 where the texel is covered or dilated.
     centre_inside : target name -> (H, W) bool, texels whose centre lies on a triangle
         (the texels Cycles bakes; comparisons use this mask).
-    buried : target name -> (H, W) bool, covered texels whose whole footprint lies inside closed
-        geometry (a floor under a wall): Cycles bakes them black, the light map holds their
-        neighbours' light (deviation: buried-texels); comparisons leave them out.
+    buried : target name -> (H, W) bool, covered texels less than half of whose footprint lies
+        outside closed geometry (a floor under a wall): Cycles bakes them black, the light map holds
+        their neighbours' light; a texel partly inside holds its outside part's (deviation:
+        buried-texels). Compare with Cycles through :meth:`as_cycles`.
     stats : JSON-ready statistics (see core/manifest.py).
     cache : the irradiance cache (None when indirect light was not baked).
     photons : the photon map (None when indirect light was not baked).
@@ -75,6 +76,12 @@ class BakeResult:
     direct: dict = field(default_factory=dict)
     indirect: dict = field(default_factory=dict)
     coverage: dict = field(default_factory=dict)
+
+    def as_cycles(self, name: str) -> np.ndarray:
+        """(H, W, 3) float32 ``name``'s direct + indirect E / pi as Cycles' bake holds it: each texel the
+        mean over its footprint, parts inside closed geometry at 0 (the light map without the
+        buried-texels deviation, before dilation). What comparisons with a Cycles bake read."""
+        return self.direct[name] + self.indirect[name]
 
 
 def bake(scene: Scene, settings: BakeSettings, progress: Progress | None = None,

@@ -81,9 +81,10 @@ class Deviations:
     """Texels a shadow edge crosses take direct light over DIRECT_FOOTPRINT_PER_AXIS^2 jittered points of
     their footprint, as Cycles' bake integrates it (core/direct_footprint.py)."""
     buried_texels: bool = True
-    """Covered texels whose whole footprint lies inside closed geometry (a floor under a wall) take their
-    neighbours' light by dilation, so a bilinear filter reads no black at a wall's foot; Cycles bakes them
-    black (core/lightmaps.py ``buried_texels``)."""
+    """The light map holds the light of each texel's part outside closed geometry: a floor's texel the wall
+    standing on it cuts holds its outside part's, one mostly under the wall its neighbours' (dilation), so
+    a bilinear filter draws no dark line at the wall's foot. Off: Cycles' texel means, the part under the
+    wall at 0 (core/lightmaps.py ``outside_shares``; ``BakeResult.as_cycles`` either way)."""
     transparent_shadows: bool = True
     """Shadow rays and photons pass transmissive triangles (Geometry.transmission), as Cycles'
     transparent shadows; off, every triangle is opaque."""

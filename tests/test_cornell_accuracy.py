@@ -36,17 +36,14 @@ def cornell():
 
 
 def _errors(result, direct, indirect, coverage):
-    """(direct+indirect, indirect) relative RMSE over the texels Cycles baked; the light maps' without
-    buried texels (the floor under the blocks: Cycles' black, PDIC's neighbours' light)."""
+    """(direct+indirect, indirect) relative RMSE over the texels Cycles baked, in Cycles' convention
+    (``BakeResult.as_cycles``: the floor under the blocks black, as Cycles bakes it)."""
     names = list(coverage)
-    lit = {n: coverage[n] & ~result.buried[n] for n in names}
-
-    def pick(images, masks):
-        return np.concatenate([images[n][..., :3][masks[n]] for n in names])
-
+    pick = lambda images: np.concatenate([images[n][..., :3][coverage[n]] for n in names])  # noqa: E731
+    ref_all = pick({n: direct[n] + indirect[n] for n in names})
+    ref_ind = pick(indirect)
     rmse = lambda t, r: float(np.sqrt(((t - r) ** 2).mean()) / r.mean())  # noqa: E731
-    return (rmse(pick(result.lightmaps, lit), pick({n: direct[n] + indirect[n] for n in names}, lit)),
-            rmse(pick(result.indirect, coverage), pick(indirect, coverage)))
+    return rmse(pick({n: result.as_cycles(n) for n in names}), ref_all), rmse(pick(result.indirect), ref_ind)
 
 
 @pytest.mark.slow
