@@ -5,8 +5,8 @@
 The occluded building (bench/scenes.py ``load_occluded``), its six objects baked by the add-on's
 ``BakeJob`` at Final with each Texel Density. The floor slab runs under the partition walls at
 x = 6 and 12 m: the floor's texels the walls' faces cut hold, in Cycles' convention, their
-footprint's mean with the part under the wall at 0, those under the wall 0. PDIC's light map holds
-the outside part's light (docs/DEVIATIONS.md, buried-texels). An orthographic camera looks straight
+footprint's mean with the part under the wall at 0, those under the wall 0. PDIC's light map fills
+them from their whole neighbours (docs/DEVIATIONS.md, buried-texels). An orthographic camera looks straight
 down on the floor in front of each wall's face and reads the map bilinearly, as a GPU does
 (``core.camera_render``): radiance = albedo x E / pi. Cycles' convention is the same bake's
 ``as_cycles`` images dilated from the raster coverage (what the switch off writes). Prints the
@@ -96,8 +96,7 @@ def main(argv=None) -> int:
     rows, shown = {}, None
     for density in [float(d) for d in args.densities.split(",")]:
         scene, maps, counters = bake_maps(density)
-        print(f"{density:g} texels/m: {counters['texels_buried']:,} buried and {counters['texels_partly_buried']:,} "
-              f"partly buried texels of {counters['texels_covered']:,}")
+        print(f"{density:g} texels/m: {counters['texels_buried']:,} buried texels of {counters['texels_covered']:,}")
         for wall, face in WALLS.items():
             camera, width, height = top_down(scene, face, args.pixels_per_metre)
             views = {label: render_preview(scene, m, camera, width, height) for label, m in maps.items()}

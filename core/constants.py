@@ -184,11 +184,6 @@ BACKFACE_FRACTION = 0.5
 VALIDITY_FOOTPRINT_PER_AXIS = 4
 """Jittered points per axis (16 per texel) that measure how much of a texel straddling a solid's
 boundary (a floor texel at a wall's foot) lies inside it (core/validity.py ``indirect_weights``)."""
-BURIED_SHARE = 0.5
-"""A texel with less than this share of its footprint outside closed geometry is buried: the light map
-fills it from its neighbours; one with more holds its outside part's light, its baked value over the
-share (deviation: buried-texels, core/lightmaps.py). Dividing by a smaller share would amplify the
-direct-footprint and validity votes' noise (16 and 64 jittered points) more than twice."""
 EVIDENCE_PHOTONS = 8
 """Nearest photons within R_min asked whether light reaches a sample the back-face vote put inside
 geometry (deviation: photon-evidence); one that sees the sample's side overrules the vote."""

@@ -54,9 +54,9 @@ class BakeResult:
         Direct+Indirect without colour), alpha = 1 where the texel is covered or dilated.
     centre_inside : target name -> (H, W) bool, texels whose centre lies on a triangle
         (the texels Cycles bakes; comparisons use this mask).
-    buried : target name -> (H, W) bool, covered texels less than half of whose footprint lies
-        outside closed geometry (a floor under a wall): Cycles bakes them black, the light map holds
-        their neighbours' light; a texel partly inside holds its outside part's (deviation:
+    buried : target name -> (H, W) bool, covered texels partly or wholly inside closed geometry (a
+        floor's texels a wall standing on it cuts or covers): Cycles bakes their footprint's mean
+        with that part at 0, the light map holds their whole neighbours' light (deviation:
         buried-texels). Compare with Cycles through :meth:`as_cycles`.
     stats : JSON-ready statistics (see core/manifest.py).
     cache : the irradiance cache (None when indirect light was not baked).

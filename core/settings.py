@@ -81,10 +81,10 @@ class Deviations:
     """Texels a shadow edge crosses take direct light over DIRECT_FOOTPRINT_PER_AXIS^2 jittered points of
     their footprint, as Cycles' bake integrates it (core/direct_footprint.py)."""
     buried_texels: bool = True
-    """The light map holds the light of each texel's part outside closed geometry: a floor's texel the wall
-    standing on it cuts holds its outside part's, one mostly under the wall its neighbours' (dilation), so
-    a bilinear filter draws no dark line at the wall's foot. Off: Cycles' texel means, the part under the
-    wall at 0 (core/lightmaps.py ``outside_shares``; ``BakeResult.as_cycles`` either way)."""
+    """Texels partly or wholly inside closed geometry (a floor's texels a wall standing on it cuts or covers)
+    take their whole neighbours' light in the light map (dilation), so a bilinear filter draws no dark line
+    at the wall's foot. Off: Cycles' texel means, the part under the wall at 0 (core/lightmaps.py
+    ``outside_shares``; ``BakeResult.as_cycles`` either way)."""
     transparent_shadows: bool = True
     """Shadow rays and photons pass transmissive triangles (Geometry.transmission), as Cycles'
     transparent shadows; off, every triangle is opaque."""
