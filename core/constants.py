@@ -184,6 +184,9 @@ BACKFACE_FRACTION = 0.5
 VALIDITY_FOOTPRINT_PER_AXIS = 4
 """Jittered points per axis (16 per texel) that measure how much of a texel straddling a solid's
 boundary (a floor texel at a wall's foot) lies inside it (core/validity.py ``indirect_weights``)."""
+SHARE_TOLERANCE = 1e-6
+"""A texel whose footprint's outside share is this close to 1 is whole, not buried (deviation:
+buried-texels, core/lightmaps.py): the validity weights' float rounding."""
 EVIDENCE_PHOTONS = 8
 """Nearest photons within R_min asked whether light reaches a sample the back-face vote put inside
 geometry (deviation: photon-evidence); one that sees the sample's side overrules the vote."""

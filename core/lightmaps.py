@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import texels as texel_stage
+from .constants import SHARE_TOLERANCE
 from .dilate import dilate
 
 
@@ -34,10 +35,6 @@ def write_lightmaps(scene, targets, padding: int, progress, stats, visible: bool
             out["indirect"][target.name] = indirect_img.astype(np.float32)
     stats.add(texels_buried=int(sum(b.sum() for b in out["buried"].values())))
     return out
-
-
-SHARE_TOLERANCE = 1e-6
-"""Outside shares this close to 1 are whole texels (the validity weights' float rounding)."""
 
 
 def outside_shares(t) -> np.ndarray:
