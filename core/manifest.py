@@ -53,8 +53,8 @@ Schema (``schema_version`` 1)
     direct-footprint deviation, ``direct_footprint_texels`` (int, texels a shadow edge may cross),
     ``direct_footprint_points`` (int, jittered points over their footprints) and
     ``direct_footprint_shadow_rays`` (int, the rays those points cast). ``texels_buried`` (int,
-    covered texels wholly or partly inside closed geometry, e.g. under a wall or cut by its face,
-    that hold their whole neighbours' light; docs/DEVIATIONS.md buried-texels).
+    covered texels wholly or partly inside closed geometry, e.g. under a wall or cut by its face;
+    with the buried-texels deviation on, docs/DEVIATIONS.md, they hold their whole neighbours' light).
 ``warnings`` : list of str
     Everything the bake reported but did not stop for (skipped objects, clamped
     values, degenerate triangles).
