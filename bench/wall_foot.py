@@ -30,37 +30,38 @@ pdic_bootstrap.load()
 from bench import scenes  # noqa: E402
 from pdic import pdic_addon  # noqa: E402
 from pdic.core.camera_render import Camera, render_preview, tone_map  # noqa: E402
-from pdic.core.dilate import dilate  # noqa: E402
+from pdic.core.dilate import dilated_rgba  # noqa: E402
 from pdic.core.pipeline import bake  # noqa: E402
 from pdic.core.settings import preset  # noqa: E402
 
 import bpy  # noqa: E402
 
-WALLS = {"room 1, partition at x = 6 m": 5.9, "room 3, partition at x = 12 m": 12.1}
-"""World x of two partition walls' faces (bench/scenes.py: walls 20 cm thick at x = 6 and 12 m), facing
-room 1 (the floor at x < 5.9) and room 3 (x > 12.1); each view is the 0.9 m x 2 m of floor before it."""
+WALLS = {"room 1, partition at x = 6 m": (5.9, -1), "room 3, partition at x = 12 m": (12.1, +1)}
+"""(World x of a partition wall's face, the side of x its floor lies on): bench/scenes.py's walls are
+20 cm thick at x = 6 and 12 m; each view is the 0.9 m x 2 m of room 1's or room 3's floor before it."""
 DEPTH, Y, Z = 0.9, (0.2, 2.2), 2.5
 """Top-down views: depth from the wall's face (m), the floor's y range (m), the camera's height (m)."""
 BANDS = (0.0, 0.01, 0.02, 0.04, 0.08, 0.16, 0.4, 0.5)
 """Edges of the distance bands from the wall's face, metres; the last band is the reference."""
 
 
-def view_x(face: float) -> tuple[float, float]:
-    """The x range of the floor in front of the wall face at ``face`` (room 1's side below x = 6)."""
-    return (face - DEPTH, face) if face < 6.0 else (face, face + DEPTH)
+def view_x(wall: tuple) -> tuple[float, float]:
+    """The x range of the floor in front of ``wall`` (face, side)."""
+    face, side = wall
+    return (face - DEPTH, face) if side < 0 else (face, face + DEPTH)
 
 
-def top_down(scene, face: float, pixels_per_metre: int) -> tuple[Camera, int, int]:
-    """An orthographic camera looking down on the floor before ``face`` (scene-local), (camera, width, height)."""
-    (x0, x1), (y0, y1) = view_x(face), Y
+def top_down(scene, wall: tuple, pixels_per_metre: int) -> tuple[Camera, int, int]:
+    """An orthographic camera looking down on the floor before ``wall`` (scene-local), (camera, width, height)."""
+    (x0, x1), (y0, y1) = view_x(wall), Y
     centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2, Z]) - scene.origin_world
     camera = Camera(centre, np.eye(3), (x1 - x0) / 2, (y1 - y0) / 2, orthographic=True)
     return camera, int((x1 - x0) * pixels_per_metre), int((y1 - y0) * pixels_per_metre)
 
 
-def profile(image: np.ndarray, face: float) -> dict:
+def profile(image: np.ndarray, wall: tuple) -> dict:
     """Mean radiance per distance band from the wall's face, over the band 40-50 cm away."""
-    x0, x1 = view_x(face)
+    (x0, x1), face = view_x(wall), wall[0]
     width = image.shape[1]
     d = np.abs(face - (x0 + (np.arange(width) + 0.5) / width * (x1 - x0)))
     column = image.mean(axis=(0, 2))
@@ -70,19 +71,16 @@ def profile(image: np.ndarray, face: float) -> dict:
 
 
 def bake_maps(density: float):
-    """(core scene, {convention: light maps}, buried texels, covered texels) of the building at ``density``."""
+    """(core scene, {convention: light maps}, the bake's counters) of the building at ``density``."""
     objects = scenes.load_occluded()
     bpy.context.view_layer.update()  # the new objects join the view layer the job bakes from
     settings = preset("FINAL", texel_density=density)
     with tempfile.TemporaryDirectory() as work:
         _, scene = scenes.prepare(objects, settings, Path(work), area_sized=False)
     result = bake(scene, settings)
-    cycles = {}
-    for target in scene.targets:
-        rgb, covered = dilate(result.as_cycles(target.name), result.coverage[target.name], settings.padding + 2)
-        cycles[target.name] = np.concatenate([rgb, covered[..., None].astype(np.float32)], axis=2)
-    counters = result.stats["counters"]
-    return scene, {"Cycles' texels": cycles, "PDIC light map": result.lightmaps}, counters
+    cycles = {t.name: dilated_rgba(result.as_cycles(t.name), result.coverage[t.name], settings.padding + 2)
+              for t in scene.targets}
+    return scene, {"Cycles' texels": cycles, "PDIC light map": result.lightmaps}, result.stats["counters"]
 
 
 def main(argv=None) -> int:
@@ -97,14 +95,14 @@ def main(argv=None) -> int:
     for density in [float(d) for d in args.densities.split(",")]:
         scene, maps, counters = bake_maps(density)
         print(f"{density:g} texels/m: {counters['texels_buried']:,} buried texels of {counters['texels_covered']:,}")
-        for wall, face in WALLS.items():
-            camera, width, height = top_down(scene, face, args.pixels_per_metre)
+        for name, wall in WALLS.items():
+            camera, width, height = top_down(scene, wall, args.pixels_per_metre)
             views = {label: render_preview(scene, m, camera, width, height) for label, m in maps.items()}
             for label, image in views.items():
-                rows[(density, wall, label)] = bands = profile(image, face)
-                print(f"  {wall}, {label}: " + ", ".join(f"{100 * a:g}-{100 * b:g} cm {v:.3f}"
+                rows[(density, name, label)] = bands = profile(image, wall)
+                print(f"  {name}, {label}: " + ", ".join(f"{100 * a:g}-{100 * b:g} cm {v:.3f}"
                                                          for (a, b), v in bands.items()))
-            shown = shown or (density, wall, face, views)
+            shown = shown or (density, name, wall, views)
     plot(shown, rows, Path(args.out))
     print("wrote", args.out)
     return 0
@@ -115,13 +113,13 @@ def plot(shown, rows: dict, out: Path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    density, wall, face, views = shown
+    density, name, wall, views = shown
     exposure = -np.log2(max(float(np.percentile(next(iter(views.values())), 99)), 1e-6))
     fig, axes = plt.subplots(1, 3, figsize=(11, 4.2), dpi=90, gridspec_kw=dict(width_ratios=(1, 1, 1.8)))
     for ax, (label, image) in zip(axes, views.items()):
-        ax.imshow(tone_map(image, exposure), extent=(*view_x(face), *Y), interpolation="nearest")
+        ax.imshow(tone_map(image, exposure), extent=(*view_x(wall), *Y), interpolation="nearest")
         ax.set_title(f"{label}, {density:g} texels/m", fontsize=9)
-        ax.set_xlabel(f"x (m); the wall's face at x = {face}", fontsize=8)
+        ax.set_xlabel(f"x (m); the wall's face at x = {wall[0]}", fontsize=8)
     ax = axes[2]
     for (d, w, label), bands in rows.items():
         centres = [100 * (a + b) / 2 for a, b in bands]
@@ -131,7 +129,7 @@ def plot(shown, rows: dict, out: Path):
     ax.set_ylabel("floor radiance / its value 40-50 cm away")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=6)
-    fig.suptitle(f"Floor at a wall's foot, light map read bilinearly (occluded building, Final): {wall}", fontsize=10)
+    fig.suptitle(f"Floor at a wall's foot, light map read bilinearly (occluded building, Final): {name}", fontsize=10)
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out)

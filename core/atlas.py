@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import xatlas
 
-from .dilate import dilate
+from .dilate import dilated_rgba
 from .unwrap import CHILD_SECONDS_BASE, CHILD_SECONDS_PER_TRIANGLE, UnwrapError, ask_child
 from .xatlas_charts import GOOD_FILL, MAX_PACK_ATTEMPTS, pack_options
 
@@ -392,6 +392,5 @@ def composite(layout: AtlasLayout, lightmaps: dict, coverage: dict, dilation: in
         view_cov |= mask
     out = []
     for image, mask in zip(rgb, covered):
-        filled, alpha = dilate(image, mask, dilation)
-        out.append(np.concatenate([filled, alpha[..., None].astype(np.float32)], axis=2))
+        out.append(dilated_rgba(image, mask, dilation))
     return out, conflicts

@@ -52,3 +52,10 @@ def dilate(image: np.ndarray, coverage: np.ndarray, iterations: int) -> tuple[np
         out[fill] = (total[fill] / count[fill][:, None]).astype(np.float32)
         covered = covered | fill
     return out, covered
+
+
+def dilated_rgba(image: np.ndarray, coverage: np.ndarray, iterations: int) -> np.ndarray:
+    """(H, W, C + 1) float32: :func:`dilate`'s image with an alpha channel, 1 where a texel is covered
+    or was filled, 0 elsewhere (light maps and atlases are written this way)."""
+    filled, covered = dilate(image, coverage, iterations)
+    return np.concatenate([filled, covered[..., None].astype(np.float32)], axis=2)

@@ -5,7 +5,7 @@ import numpy as np
 
 from . import texels as texel_stage
 from .constants import SHARE_TOLERANCE
-from .dilate import dilate
+from .dilate import dilated_rgba
 
 
 def write_lightmaps(scene, targets, padding: int, progress, stats, visible: bool = True) -> dict:
@@ -25,8 +25,7 @@ def write_lightmaps(scene, targets, padding: int, progress, stats, visible: bool
             indirect_img = texel_stage.splat(t.E_indirect, t.points, t.raster, weight=t.indirect_weight) / np.pi
             buried = t.raster.coverage & (outside_shares(t) < 1.0 - SHARE_TOLERANCE)
             baked = t.raster.coverage & ~buried if visible else t.raster.coverage
-            rgb, coverage = dilate((direct_img + indirect_img).astype(np.float32), baked, padding + 2)
-            rgba = np.concatenate([rgb, coverage[..., None].astype(np.float32)], axis=2)
+            rgba = dilated_rgba((direct_img + indirect_img).astype(np.float32), baked, padding + 2)
             out["lightmaps"][target.name] = finite(rgba, target.name)
             out["centre_inside"][target.name] = t.raster.centre_inside
             out["buried"][target.name] = buried
