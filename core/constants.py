@@ -230,5 +230,8 @@ HIT_GRID_MAX_CELLS = 4_000_000
 """The step widens until the whole grid holds at most this many cells (84 bytes each)."""
 HIT_GRID_CELLS_PER_HIT = 0.125
 """... and at most this many cells (both sides) per gathering hit expected (records x cells)."""
+HIT_GRID_NEAR = 1.0
+"""A gathering hit nearer to its record than this times its distance from its grid cell's centroid is
+shaded on its own (core/real_rays.py): the cell would stand for much of the record's hemisphere."""
 HIT_GRID_DIRECT_SAMPLES = 4
 """Shadow-ray samples per soft light at each grid cell (hits read the grid, so its noise is shared)."""

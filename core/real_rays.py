@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .albedo import albedo as albedo_at
+from .constants import HIT_GRID_NEAR
 from .direct import direct_irradiance
 from .gather_cells import CellSums
 from .photon_fallback import NOT_ASKED, NearestPhotons, nearest_photon_seen, photon_irradiance
@@ -29,7 +30,7 @@ class RealHits:
 
     cell : (h,) int64 flat cells (record * C + cell) of the rays that hit something.
     triangle : (h,) int64; barycentric : (h, 2) float64; q : (h, 3) float64 hit points;
-    direction : (h, 3) float64 unit ray directions.
+    direction : (h, 3) float64 unit ray directions; t : (h,) float64 their distances from the record.
     """
 
     cell: np.ndarray
@@ -37,11 +38,12 @@ class RealHits:
     barycentric: np.ndarray
     q: np.ndarray
     direction: np.ndarray
+    t: np.ndarray
 
     @staticmethod
     def concatenate(parts: list["RealHits"]) -> "RealHits":
         return RealHits(*(np.concatenate([getattr(part, f) for part in parts]) for f in
-                          ("cell", "triangle", "barycentric", "q", "direction")))
+                          ("cell", "triangle", "barycentric", "q", "direction", "t")))
 
 
 def trace_real(caster, frames, cells: np.ndarray, sums: CellSums, rng: np.random.Generator
@@ -66,7 +68,7 @@ def trace_real(caster, frames, cells: np.ndarray, sums: CellSums, rng: np.random
     hit = np.flatnonzero(hits.hit)
     d_hit = np.take(d_world, hit, axis=0)
     found = RealHits(cells[hit], hits.triangle[hit], np.take(hits.barycentric, hit, axis=0),
-                     np.take(origin, hit, axis=0) + d_hit * hits.t[hit, None], d_hit)
+                     np.take(origin, hit, axis=0) + d_hit * hits.t[hit, None], d_hit, hits.t[hit])
     inv_sum = np.bincount(rec[hit], weights=1.0 / np.maximum(hits.t[hit], 1e-300), minlength=sums.B)
     inv_n = np.bincount(rec[hit], minlength=sums.B).astype(np.float64)
     sums.add_distances(inv_sum, inv_n)
@@ -79,13 +81,14 @@ def shade_real(scene, caster, sources, hits: RealHits, sums: CellSums, rng: np.r
     if len(hits.cell) == 0:
         return 0
     L, shadow_rays = radiance_at_hits(scene, caster, sources, hits.triangle, hits.barycentric, hits.q,
-                                      hits.direction, rng)
+                                      hits.direction, hits.t, rng)
     sums.add_real_radiance(hits.cell, L)
     return shadow_rays
 
 
 def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: np.ndarray, q: np.ndarray,
-                     direction: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, int]:
+                     direction: np.ndarray, distance: np.ndarray, rng: np.random.Generator
+                     ) -> tuple[np.ndarray, int]:
     """(h, 3) radiance toward the rays, albedo at the hit x (E_direct + E_indirect) / pi, and rays spent.
 
     ``sources`` : :class:`core.refinement.GatherSources`. Where no record accepts the hit
@@ -93,7 +96,8 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
     (deviation: nearest-photon-fallback): on Sponza a third of the hits are such holes. With
     ``sources.hit_grid`` (deviation: hit-grid) a hit that sees its grid cell's centroid reads
     E_direct + E_indirect and the mean albedo from the cell (one occlusion ray); the rest are shaded
-    as above, with their own albedo.
+    as above, with their own albedo, and so are hits nearer to the record than HIT_GRID_NEAR times
+    their cell centroid's distance from them (``distance`` (h,): each hit's from the record).
     """
     n_face = np.take(caster.face_normals, triangle, axis=0)
     back = np.einsum("ij,ij->i", n_face, direction) > 0  # the ray reached the face's back side
@@ -102,10 +106,17 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
         E, rays = _irradiance_at_hits(scene, caster, sources, q, n_hit, rng)
         return albedo_at(scene, triangle, barycentric).astype(np.float64) * E / np.pi, rays
     # deviation: hit-grid, docs/DEVIATIONS.md: the hit's grid cell (its E and mean albedo), if the
-    # hit sees its centroid.
+    # hit sees its centroid and the cell is small as the record sees it. A record 2 cm in front of a
+    # wall (tracery, a pipe, a frame) gathers mostly from the wall patch right behind it, which a
+    # cell's centroid in the open would light.
     E, centroid, rho = sources.hit_grid.lookup(triangle, barycentric, back)
-    own = np.flatnonzero(~caster.sides_visible(q, n_hit, centroid, n_hit))
-    rays = len(q)
+    offset = q - centroid
+    near = np.einsum("ij,ij->i", offset, offset) > (HIT_GRID_NEAR * distance) ** 2
+    far = np.flatnonzero(~near)
+    alone = near.copy()
+    alone[far] = ~caster.sides_visible(q[far], n_hit[far], centroid[far], n_hit[far])
+    own = np.flatnonzero(alone)
+    rays = len(far)
     if rho is None:
         rho = albedo_at(scene, triangle, barycentric).astype(np.float64)
     elif len(own):

@@ -23,7 +23,7 @@ def _gather(caster, p, n, rays):
     cell = np.repeat(np.arange(B) * CELLS, rays) + np.tile(np.arange(rays), B)
     h = hits.hit
     return RealHits(cell[h], hits.triangle[h], hits.barycentric[h], origin[h] + direction[h] * hits.t[h, None],
-                    direction[h])
+                    direction[h], hits.t[h])
 
 
 def test_a_record_inside_a_closed_solid_is_inside_and_one_above_it_is_not():
