@@ -407,7 +407,7 @@ def figure5(name, scene, photons, bounces, extra, ref, pair=None) -> dict:
     try:
         caster = RayCaster(scene.geometry.positions, scene.extent, executor, scene.geometry.transmission)
         points, rasters = texel_stage.lift_texels(scene, settings.texel_samples)
-        inside, _ = inside_geometry(caster, scene.geometry.face_normals(), points.p, points.n_geometric,
+        inside, _, _ = inside_geometry(caster, scene.geometry.face_normals(), points.p, points.n_geometric,
                                     np.random.default_rng(0))
         valid = np.flatnonzero(~inside)
         photon_map, t_photons = timed(trace_pass, scene, caster, settings, bounces, executor, progress, stats)

@@ -179,6 +179,13 @@ FINE_ZONE_TEXELS = 4.0
 interpolated per sample rather than once at their centroid (deviation: fine-zones)."""
 VALIDITY_RAYS = 8
 """Hemisphere rays per texel sample (at most) of the texel validity test."""
+COVERED_TEXELS = 0.1
+"""A texel sample whose first round of validity rays all hit, nearer than this many texels, a face
+turned back toward it is inside geometry (core/validity.py: a gap that thin and that wide is dark and
+unseen)."""
+COVERED_COS = 0.97
+"""-cos between such a face's normal and the sample's above which it covers the sample: a sheet
+over it. A corner's other face, often lit (Sponza's column flutes by the lamps: -0.85 to -0.91), does not."""
 BACKFACE_FRACTION = 0.5
 """A sample is inside geometry when more than this fraction of its rays hit back faces."""
 VALIDITY_FOOTPRINT_PER_AXIS = 4

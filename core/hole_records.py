@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .constants import FINE_ZONE_TEXELS, GAP_TEXELS, NEAREST_RECORDS, STREAM_HOLE_ORDER, STREAM_REFINE_HOLES, STREAM_VALIDITY
+from .constants import COVERED_TEXELS, FINE_ZONE_TEXELS, GAP_TEXELS, NEAREST_RECORDS, STREAM_HOLE_ORDER, STREAM_REFINE_HOLES, STREAM_VALIDITY
 from .density import PhotonDensity
 from .executor import Executor, Progress
 from .interpolation import interpolate
@@ -41,18 +41,20 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
         return E, IrradianceCache(), points.weight.astype(np.float64)
     progress.begin("Texel validity")
     with stats.stage("validity"):
+        cover = COVERED_TEXELS * texel_size
         if settings.deviations.texel_validity:  # deviation: texel-validity, docs/DEVIATIONS.md
-            inside, rays = texel_validity(caster, points, [settings.seed, STREAM_VALIDITY, stream], executor,
-                                          progress)
+            inside, covered, rays = texel_validity(caster, points, [settings.seed, STREAM_VALIDITY, stream],
+                                                   executor, progress, cover)
         else:
-            inside, rays = np.zeros(len(points), bool), 0
+            inside, covered, rays = np.zeros(len(points), bool), np.zeros(len(points), bool), 0
         overruled = 0
         if settings.deviations.photon_evidence:  # deviation: photon-evidence, docs/DEVIATIONS.md
             overruled = overrule_by_photons(inside, caster, density, points.p, points.n_geometric, params.R_min)
+        inside |= covered  # photons that reach a gap's floor do not make it seen or lit like the open floor
         weights, footprint_rays = indirect_weights(scene, caster, density, target_index, points, inside, settings,
-                                                   params.R_min, stream)
+                                                   params.R_min, stream, cover)
     stats.add(texel_samples_inside_geometry=int(inside.sum()), validity_rays=rays + footprint_rays,
-              texel_samples_photon_evidence=overruled)
+              texel_samples_photon_evidence=overruled, texel_samples_covered=int(covered.sum()))
     valid = np.flatnonzero(~inside)
     progress.begin("Interpolating the cache at texels")
     with stats.stage("interpolate"):

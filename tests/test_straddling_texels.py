@@ -49,7 +49,7 @@ def _shares(wall_x: float) -> np.ndarray:
     settings = preset("FINAL", threads=1, deviations=Deviations(photon_evidence=False))
     points, rasters = texel_stage.lift_texels(scene, settings.texel_samples)
     caster = RayCaster(scene.geometry.positions, scene.extent, Executor(1), scene.geometry.transmission)
-    inside, _ = texel_validity(caster, points, [0, 1], Executor(1), Progress())
+    inside, _, _ = texel_validity(caster, points, [0, 1], Executor(1), Progress())
     weights, rays = indirect_weights(scene, caster, None, 0, points, inside, settings, 0.25, 7)
     assert rays > 0
     share = np.bincount(points.texel, weights=weights, minlength=RES * RES).reshape(RES, RES)

@@ -38,7 +38,7 @@ def test_validity_rounds_give_the_verdict_of_all_eight_rays_with_fewer_rays():
     m = 4000  # floor points, a quarter of them under the box, some near its walls
     p = np.column_stack([rng.uniform(-1.2, 1.2, m), rng.uniform(-1.2, 1.2, m), np.zeros(m)])
     n = np.tile([0.0, 0, 1], (m, 1))
-    inside, rays = inside_geometry(caster, face_n, p, n, np.random.default_rng(11))
+    inside, _, rays = inside_geometry(caster, face_n, p, n, np.random.default_rng(11))
     # The long way: the same eight directions (drawn the same way), all cast.
     local = cosine_hemisphere(np.random.default_rng(11).random((m, VALIDITY_RAYS, 2)))[0]
     t1, t2 = orthonormal_basis(n)
