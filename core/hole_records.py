@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .constants import COVERED_TEXELS, FINE_ZONE_TEXELS, GAP_TEXELS, NEAREST_RECORDS, STREAM_HOLE_ORDER, STREAM_REFINE_HOLES, STREAM_VALIDITY
+from .constants import (COVERED_TEXELS, FINE_ZONE_TEXELS, GAP_TEXELS, NEAREST_RECORDS, STREAM_HOLE_ORDER,
+                        STREAM_REFINE_HOLES, STREAM_VALIDITY)
 from .density import PhotonDensity
 from .executor import Executor, Progress
 from .interpolation import interpolate

@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .constants import (BACKFACE_FRACTION, COVERED_COS, EVIDENCE_COS, EVIDENCE_PHOTONS, EVIDENCE_REACH, STREAM_VALIDITY_FOOTPRINT,
-                        VALIDITY_FOOTPRINT_PER_AXIS, VALIDITY_RAYS)
+from .constants import (BACKFACE_FRACTION, COVERED_COS, EVIDENCE_COS, EVIDENCE_PHOTONS, EVIDENCE_REACH,
+                        STREAM_VALIDITY_FOOTPRINT, VALIDITY_FOOTPRINT_PER_AXIS, VALIDITY_RAYS)
 from .executor import TEXEL_CHUNK, slices
 from .rays import RayCaster
 from .sampling import cosine_hemisphere, orthonormal_basis
@@ -74,7 +74,8 @@ def inside_geometry(caster: RayCaster, face_normals: np.ndarray, p: np.ndarray, 
         is_back[hit] = np.einsum("ij,ij->i", np.take(face_normals, hits.triangle[hit], axis=0), d[hit]) > 0
         back[open_] += is_back.reshape(-1, step).sum(axis=1)
         if done == 0 and cover > 0:
-            covered = _under_cover(hits, face_normals, np.take(n, ray_sample, axis=0), cover).reshape(-1, step).all(axis=1)
+            under = _under_cover(hits, face_normals, np.take(n, ray_sample, axis=0), cover)
+            covered = under.reshape(-1, step).all(axis=1)  # the first round asks every sample
         done += step
         b = back[open_]
         settled_inside = b >= majority
