@@ -55,6 +55,9 @@ Schema (``schema_version`` 1)
     ``direct_footprint_shadow_rays`` (int, the rays those points cast). ``texels_buried`` (int,
     covered texels wholly or partly inside closed geometry, e.g. under a wall or cut by its face;
     with the buried-texels deviation on, docs/DEVIATIONS.md, they hold their whole neighbours' light).
+    Texel validity: ``texel_samples_inside_geometry`` (int, samples given no indirect light),
+    of them ``texel_samples_covered`` (int, samples under a sheet nearer than a tenth of a texel),
+    and ``texel_samples_photon_evidence`` (int, back-face votes a photon overruled).
 ``warnings`` : list of str
     Everything the bake reported but did not stop for (skipped objects, clamped
     values, degenerate triangles).
