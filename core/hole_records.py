@@ -23,7 +23,7 @@ from .interpolation import interpolate
 from .irradiance_cache import CacheParameters, IrradianceCache, cache_for_holes
 from .refinement import GatherSources, refine_records
 from .settings import BakeSettings
-from .validity import indirect_weights, overrule_by_photons, texel_validity
+from .validity import indirect_weights, texel_validity, verdict
 
 
 def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: GatherSources | None,
@@ -48,10 +48,8 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
                                                    executor, progress, cover)
         else:
             inside, covered, rays = np.zeros(len(points), bool), np.zeros(len(points), bool), 0
-        overruled = 0
-        if settings.deviations.photon_evidence:  # deviation: photon-evidence, docs/DEVIATIONS.md
-            overruled = overrule_by_photons(inside, caster, density, points.p, points.n_geometric, params.R_min)
-        inside |= covered  # photons that reach a gap's floor do not make it seen or lit like the open floor
+        inside, overruled = verdict(inside, covered, caster, density, points.p, points.n_geometric, params.R_min,
+                                    settings)
         weights, footprint_rays = indirect_weights(scene, caster, density, target_index, points, inside, settings,
                                                    params.R_min, stream, cover)
     stats.add(texel_samples_inside_geometry=int(inside.sum()), validity_rays=rays + footprint_rays,

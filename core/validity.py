@@ -67,14 +67,15 @@ def inside_geometry(caster: RayCaster, face_normals: np.ndarray, p: np.ndarray, 
         t1_o, t2_o, n_o = (np.take(v, open_, axis=0)[:, None] for v in (t1, t2, n))
         d = (w[..., :1] * t1_o + w[..., 1:2] * t2_o + w[..., 2:3] * n_o).reshape(-1, 3)
         ray_sample = np.repeat(open_, step)
-        hits = caster.intersect(np.take(p, ray_sample, axis=0), d, normals=np.take(n, ray_sample, axis=0), unit=True)
+        n_ray = np.take(n, ray_sample, axis=0)
+        hits = caster.intersect(np.take(p, ray_sample, axis=0), d, normals=n_ray, unit=True)
         cast += len(d)
         hit = hits.hit
         is_back = np.zeros(len(d), bool)
         is_back[hit] = np.einsum("ij,ij->i", np.take(face_normals, hits.triangle[hit], axis=0), d[hit]) > 0
         back[open_] += is_back.reshape(-1, step).sum(axis=1)
         if done == 0 and cover > 0:
-            under = _under_cover(hits, face_normals, np.take(n, ray_sample, axis=0), cover)
+            under = _under_cover(hits, face_normals, n_ray, cover)
             covered = under.reshape(-1, step).all(axis=1)  # the first round asks every sample
         done += step
         b = back[open_]
@@ -121,6 +122,18 @@ def texel_validity(caster: RayCaster, points, seed: list, executor, progress, co
     inside = np.concatenate([i for i, _, _ in parts]) if parts else np.zeros(0, bool)
     covered = np.concatenate([c for _, c, _ in parts]) if parts else np.zeros(0, bool)
     return inside, covered, rays
+
+
+def verdict(inside: np.ndarray, covered: np.ndarray, caster: RayCaster, density, p: np.ndarray, n: np.ndarray,
+            R_min: float, settings) -> tuple[np.ndarray, int]:
+    """(m,) bool samples inside geometry, and how many votes photons overruled: :func:`inside_geometry`'s
+    back-face vote ``inside`` less what photon evidence overrules (deviation: photon-evidence; the vote
+    is changed in place), or ``covered`` (photons that reach a gap's floor do not make it seen or lit
+    like the open floor). p, n : (m, 3) the samples and their front-side normals."""
+    overruled = 0
+    if settings.deviations.photon_evidence:  # deviation: photon-evidence, docs/DEVIATIONS.md
+        overruled = overrule_by_photons(inside, caster, density, p, n, R_min)
+    return inside | covered, overruled
 
 
 def overrule_by_photons(inside: np.ndarray, caster: RayCaster, density, p: np.ndarray, n: np.ndarray,
@@ -193,9 +206,7 @@ def indirect_weights(scene, caster, density, target_index: int, points, inside: 
         fp_inside, fp_covered, rays = inside_geometry(
             serial, serial.face_normals, fp.p, fp.n_geometric,
             np.random.default_rng([settings.seed, STREAM_VALIDITY_FOOTPRINT, stream, 1]), cover=cover)
-        if settings.deviations.photon_evidence:
-            overrule_by_photons(fp_inside, caster, density, fp.p, fp.n_geometric, R_min)
-        fp_inside |= fp_covered
+        fp_inside, _ = verdict(fp_inside, fp_covered, caster, density, fp.p, fp.n_geometric, R_min, settings)
         fw = fp.weight.astype(np.float64)
         fp_total = np.bincount(fp.texel, weights=fw, minlength=size)
         fp_out = np.bincount(fp.texel, weights=np.where(fp_inside, 0.0, fw), minlength=size)
