@@ -1,6 +1,6 @@
 """The floor at a wall's foot as a game engine samples the light map: Cycles' texels or PDIC's.
 
-    .venv/bin/python bench/wall_foot.py [--densities 8,16] [--out bench/plots/wall_foot.png]
+    .venv/bin/python bench/wall_foot.py [--densities 8,16] [--direct-only] [--out bench/plots/wall_foot.png]
 
 The occluded building (bench/scenes.py ``load_occluded``), its six objects baked by the add-on's
 ``BakeJob`` at Final with each Texel Density. The floor slab runs under the partition walls at
@@ -11,7 +11,8 @@ down on the floor in front of each wall's face and reads the map bilinearly, as 
 (``core.camera_render``): radiance = albedo x E / pi. Cycles' convention is the same bake's
 ``as_cycles`` images dilated from the raster coverage (what the switch off writes). Prints the
 floor's radiance in bands of distance from the wall's face, relative to the band 40-50 cm away,
-and writes the first wall's views with every profile.
+and writes the first wall's views with every profile. ``--direct-only`` bakes the direct light
+alone (Passes: Indirect off), where texel validity votes only near lit texels.
 """
 from __future__ import annotations
 
@@ -59,22 +60,23 @@ def top_down(scene, wall: tuple, pixels_per_metre: int) -> tuple[Camera, int, in
     return camera, int((x1 - x0) * pixels_per_metre), int((y1 - y0) * pixels_per_metre)
 
 
-def profile(image: np.ndarray, wall: tuple) -> dict:
-    """Mean radiance per distance band from the wall's face, over the band 40-50 cm away."""
+def profile(image: np.ndarray, wall: tuple) -> dict | None:
+    """Mean radiance per distance band from the wall's face, over the band 40-50 cm away (None where that
+    band is dark: room 3's floor there gets no direct light)."""
     (x0, x1), face = view_x(wall), wall[0]
     width = image.shape[1]
     d = np.abs(face - (x0 + (np.arange(width) + 0.5) / width * (x1 - x0)))
     column = image.mean(axis=(0, 2))
     bands = {(a, b): float(column[(d >= a) & (d < b)].mean()) for a, b in zip(BANDS[:-1], BANDS[1:])}
     far = bands[(BANDS[-2], BANDS[-1])]
-    return {k: v / far for k, v in bands.items()}
+    return {k: v / far for k, v in bands.items()} if far > 0 else None
 
 
-def bake_maps(density: float):
+def bake_maps(density: float, indirect: bool = True):
     """(core scene, {convention: light maps}, the bake's counters) of the building at ``density``."""
     objects = scenes.load_occluded()
     bpy.context.view_layer.update()  # the new objects join the view layer the job bakes from
-    settings = preset("FINAL", texel_density=density)
+    settings = preset("FINAL", texel_density=density, indirect=indirect)
     with tempfile.TemporaryDirectory() as work:
         _, scene = scenes.prepare(objects, settings, Path(work), area_sized=False)
     result = bake(scene, settings)
@@ -87,28 +89,33 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--densities", default="8,16", help="Texel Densities, texels per metre")
     ap.add_argument("--pixels-per-metre", type=int, default=400)
+    ap.add_argument("--direct-only", action="store_true", help="bake the direct light alone")
     ap.add_argument("--out", default=str(ROOT / "bench" / "plots" / "wall_foot.png"))
     args = ap.parse_args(argv)
 
     pdic_addon.register()
     rows, shown = {}, None
     for density in [float(d) for d in args.densities.split(",")]:
-        scene, maps, counters = bake_maps(density)
+        scene, maps, counters = bake_maps(density, not args.direct_only)
         print(f"{density:g} texels/m: {counters['texels_buried']:,} buried texels of {counters['texels_covered']:,}")
         for name, wall in WALLS.items():
             camera, width, height = top_down(scene, wall, args.pixels_per_metre)
             views = {label: render_preview(scene, m, camera, width, height) for label, m in maps.items()}
             for label, image in views.items():
-                rows[(density, name, label)] = bands = profile(image, wall)
+                bands = profile(image, wall)
+                if bands is None:
+                    print(f"  {name}, {label}: dark 40-50 cm from the wall, not profiled")
+                    continue
+                rows[(density, name, label)] = bands
                 print(f"  {name}, {label}: " + ", ".join(f"{100 * a:g}-{100 * b:g} cm {v:.3f}"
                                                          for (a, b), v in bands.items()))
             shown = shown or (density, name, wall, views)
-    plot(shown, rows, Path(args.out))
+    plot(shown, rows, Path(args.out), "Final, direct light only" if args.direct_only else "Final")
     print("wrote", args.out)
     return 0
 
 
-def plot(shown, rows: dict, out: Path):
+def plot(shown, rows: dict, out: Path, mode: str = "Final"):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -129,7 +136,7 @@ def plot(shown, rows: dict, out: Path):
     ax.set_ylabel("floor radiance / its value 40-50 cm away")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=6)
-    fig.suptitle(f"Floor at a wall's foot, light map read bilinearly (occluded building, Final): {name}", fontsize=10)
+    fig.suptitle(f"Floor at a wall's foot, light map read bilinearly (occluded building, {mode}): {name}", fontsize=10)
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out)

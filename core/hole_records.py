@@ -15,15 +15,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .constants import (COVERED_TEXELS, FINE_ZONE_TEXELS, GAP_TEXELS, NEAREST_RECORDS, STREAM_HOLE_ORDER,
-                        STREAM_REFINE_HOLES, STREAM_VALIDITY)
+from .constants import FINE_ZONE_TEXELS, GAP_TEXELS, NEAREST_RECORDS, STREAM_HOLE_ORDER, STREAM_REFINE_HOLES
 from .density import PhotonDensity
 from .executor import Executor, Progress
 from .interpolation import interpolate
 from .irradiance_cache import CacheParameters, IrradianceCache, cache_for_holes
 from .refinement import GatherSources, refine_records
 from .settings import BakeSettings
-from .validity import indirect_weights, texel_validity, verdict
+from .validity import sample_validity
 
 
 def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: GatherSources | None,
@@ -40,20 +39,8 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
     E = np.zeros((len(points), 3))
     if density is None or len(points) == 0:
         return E, IrradianceCache(), points.weight.astype(np.float64)
-    progress.begin("Texel validity")
-    with stats.stage("validity"):
-        cover = COVERED_TEXELS * texel_size
-        if settings.deviations.texel_validity:  # deviation: texel-validity, docs/DEVIATIONS.md
-            inside, covered, rays = texel_validity(caster, points, [settings.seed, STREAM_VALIDITY, stream],
-                                                   executor, progress, cover)
-        else:
-            inside, covered, rays = np.zeros(len(points), bool), np.zeros(len(points), bool), 0
-        inside, overruled = verdict(inside, covered, caster, density, points.p, points.n_geometric, params.R_min,
-                                    settings)
-        weights, footprint_rays = indirect_weights(scene, caster, density, target_index, points, inside, settings,
-                                                   params.R_min, stream, cover)
-    stats.add(texel_samples_inside_geometry=int(inside.sum()), validity_rays=rays + footprint_rays,
-              texel_samples_photon_evidence=overruled, texel_samples_covered=int(covered.sum()))
+    inside, weights = sample_validity(scene, caster, density, target_index, points, texel_size, stream, params.R_min,
+                                      settings, executor, progress, stats)
     valid = np.flatnonzero(~inside)
     progress.begin("Interpolating the cache at texels")
     with stats.stage("interpolate"):

@@ -57,7 +57,9 @@ Schema (``schema_version`` 1)
     with the buried-texels deviation on, docs/DEVIATIONS.md, they hold their whole neighbours' light).
     Texel validity: ``texel_samples_inside_geometry`` (int, samples given no indirect light),
     of them ``texel_samples_covered`` (int, samples under a sheet nearer than a tenth of a texel),
-    and ``texel_samples_photon_evidence`` (int, back-face votes a photon overruled).
+    and ``texel_samples_photon_evidence`` (int, back-face votes a photon overruled),
+    ``validity_rays`` (int); a bake without indirect light votes only on unlit samples near lit
+    texels, to bury texels for the light map.
 ``warnings`` : list of str
     Everything the bake reported but did not stop for (skipped objects, clamped
     values, degenerate triangles).

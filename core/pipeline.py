@@ -43,6 +43,7 @@ from .rays import RayCaster
 from .refinement import gather_sources, light_photons, refine_records
 from .scene import Scene, SceneError
 from .settings import BakeSettings
+from .validity import sample_validity
 from .stats import BakeStats
 
 
@@ -117,6 +118,8 @@ def _bake(run: "_Run") -> BakeResult:
     if run.settings.indirect and run.settings.photons > 0:
         params = cache_parameters(run.scene, [t.raster for t in targets], run.settings)
         cache, photons, lighting = indirect_at_targets(run, targets, params)
+    else:
+        validity_without_indirect(run, targets)
     maps = write_lightmaps(run.scene, targets, run.settings.padding, run.progress, run.stats,
                            run.settings.deviations.buried_texels)
     return _finish(run, BakeResult(**maps, cache=cache, photons=photons, photon_lighting=lighting))
@@ -279,10 +282,67 @@ def shade_direct_at_targets(run: "_Run", targets: list[TargetTexels]) -> None:
         return E
 
     for index, t in enumerate(targets):  # targets are rasterise_targets' list: scene.targets' order
-        key = store.key("direct", run.transport(), t.key, settings.direct_samples, settings.seed,
-                        settings.deviations.direct_footprint, settings.direct_footprint_side)
-        t.E_direct = store.memoise("direct", key, lambda: shade(index, t))
+        t.E_direct = store.memoise("direct", _direct_key(run, t), lambda: shade(index, t))
     stats.set(targets_shaded_direct=len(shaded))
+
+
+def _direct_key(run: "_Run", t: TargetTexels) -> str:
+    """The bake cache's key of a target's direct light."""
+    settings = run.settings
+    return run.store.key("direct", run.transport(), t.key, settings.direct_samples, settings.seed,
+                         settings.deviations.direct_footprint, settings.direct_footprint_side)
+
+
+def validity_without_indirect(run: "_Run", targets: list[TargetTexels]) -> None:
+    """Texel validity for a bake without indirect light, so its light map buries texels under walls too
+    (deviation: buried-texels): the direct light alone would keep Cycles' dark line along every wall's foot.
+
+    Only samples :func:`_voted` picks cast validity rays: the direct light's own evidence settles the
+    lit ones; with no photons, no photon evidence overrules the others' back-face votes. Sets each target's
+    ``indirect_weight`` (the share :func:`core.lightmaps.outside_shares` reads).
+    """
+    settings, store = run.settings, run.store
+    deviations = settings.deviations
+    if not (settings.direct and deviations.buried_texels and deviations.texel_validity):
+        return
+
+    def weights(index: int, t: TargetTexels):
+        voted = _voted(t.E_direct, t.points.texel, t.raster.width, t.raster.height, settings.padding + 2)
+        return sample_validity(run.scene, run.caster(), None, index, t.points, t.texel_size, t.stream, 0.0,
+                               settings, run.executor, run.progress, run.stats, voted)[1]
+
+    for index, t in enumerate(targets):
+        key = store.key("indirect", "validity without indirect light", _direct_key(run, t), deviations,
+                        settings.padding)
+        t.indirect_weight = store.memoise("indirect", key, lambda: weights(index, t))
+
+
+def _voted(E_direct: np.ndarray, texel: np.ndarray, width: int, height: int, reach: int) -> np.ndarray:
+    """(n,) bool the samples texel validity votes on in a bake without indirect light: those their own
+    shadow rays did not find lit, in texels within ``reach`` texels of a lit sample's (the light map's
+    dilation rings: the texels it may fill from lit ones).
+
+    Lit means E_direct > 0 in a texel whose samples differ: a shadow-edge texel holds its footprint's
+    mean at every sample (deviation: direct-footprint), a sample under the wall included (a texel lit
+    evenly by the sun is voted on too). Away from lit texels a buried texel and its neighbours are
+    dark alike. Past ``reach`` texels under a wall the texels count as whole and black, and the
+    dilation averages them into the deepest buried ones: the ``reach / 2`` texels nearest the lit
+    floor take its light, what a bilinear filter and the first mip levels read.
+    """
+    E = E_direct.sum(axis=1)
+    size = width * height
+    count = np.maximum(np.bincount(texel, minlength=size), 1)
+    mean = np.bincount(texel, weights=E, minlength=size) / count
+    spread = np.bincount(texel, weights=np.abs(E - mean[texel]) > 1e-12 * np.abs(mean[texel]), minlength=size) > 0
+    lit = (E > 0) & spread[texel]
+    near = (np.bincount(texel[lit], minlength=size) > 0).reshape(height, width)
+    for _ in range(reach):  # grow by one texel (8-neighbours) per step
+        grown = np.pad(near, 1)
+        near = np.zeros_like(near)
+        for dy in (0, 1, 2):
+            for dx in (0, 1, 2):
+                near |= grown[dy:dy + height, dx:dx + width]
+    return ~lit & near.ravel()[texel]
 
 
 # --------------------------------------------------------------------------- indirect light

@@ -21,8 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .constants import (BACKFACE_FRACTION, COVERED_COS, EVIDENCE_COS, EVIDENCE_PHOTONS, EVIDENCE_REACH,
-                        STREAM_VALIDITY_FOOTPRINT, VALIDITY_FOOTPRINT_PER_AXIS, VALIDITY_RAYS)
+from .constants import (BACKFACE_FRACTION, COVERED_COS, COVERED_TEXELS, EVIDENCE_COS, EVIDENCE_PHOTONS,
+                        EVIDENCE_REACH, STREAM_VALIDITY, STREAM_VALIDITY_FOOTPRINT, VALIDITY_FOOTPRINT_PER_AXIS,
+                        VALIDITY_RAYS)
 from .executor import TEXEL_CHUNK, slices
 from .rays import RayCaster
 from .sampling import cosine_hemisphere, orthonormal_basis
@@ -124,14 +125,45 @@ def texel_validity(caster: RayCaster, points, seed: list, executor, progress, co
     return inside, covered, rays
 
 
+def sample_validity(scene, caster: RayCaster, density, target_index: int, points, texel_size: float, stream: int,
+                    R_min: float, settings, executor, progress, stats, voted: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """One target's texel validity: (inside (n,) bool, each sample's share of its texel's light (n,),
+    :func:`indirect_weights`), its counters added to ``stats`` (stage ``validity``).
+
+    The back-face vote (:func:`texel_validity`), less photon evidence, or covered (:func:`verdict`);
+    density None (no photons) leaves the evidence out. voted : (n,) bool the samples to vote on (the
+    rest count as outside: a bake without indirect light), or None for all.
+    """
+    progress.begin("Texel validity")
+    inside, covered, rays = np.zeros(len(points), bool), np.zeros(len(points), bool), 0
+    with stats.stage("validity"):
+        cover = COVERED_TEXELS * texel_size
+        if settings.deviations.texel_validity:  # deviation: texel-validity, docs/DEVIATIONS.md
+            asked = points if voted is None else points.take(np.flatnonzero(voted))
+            vote, cast, rays = texel_validity(caster, asked, [settings.seed, STREAM_VALIDITY, stream], executor,
+                                              progress, cover)
+            if voted is None:
+                inside, covered = vote, cast
+            else:
+                inside[voted], covered[voted] = vote, cast
+        inside, overruled = verdict(inside, covered, caster, density, points.p, points.n_geometric, R_min, settings)
+        weights, footprint_rays = indirect_weights(scene, caster, density, target_index, points, inside, settings,
+                                                   R_min, stream, cover)
+    stats.add(texel_samples_inside_geometry=int(inside.sum()), validity_rays=rays + footprint_rays,
+              texel_samples_photon_evidence=overruled, texel_samples_covered=int(covered.sum()))
+    return inside, weights
+
+
 def verdict(inside: np.ndarray, covered: np.ndarray, caster: RayCaster, density, p: np.ndarray, n: np.ndarray,
             R_min: float, settings) -> tuple[np.ndarray, int]:
     """(m,) bool samples inside geometry, and how many votes photons overruled: :func:`inside_geometry`'s
     back-face vote ``inside`` less what photon evidence overrules (deviation: photon-evidence; the vote
     is changed in place), or ``covered`` (photons that reach a gap's floor do not make it seen or lit
-    like the open floor). p, n : (m, 3) the samples and their front-side normals."""
+    like the open floor). p, n : (m, 3) the samples and their front-side normals; density None: a bake
+    without photons, no evidence."""
     overruled = 0
-    if settings.deviations.photon_evidence:  # deviation: photon-evidence, docs/DEVIATIONS.md
+    if settings.deviations.photon_evidence and density is not None:  # deviation: photon-evidence, docs/DEVIATIONS.md
         overruled = overrule_by_photons(inside, caster, density, p, n, R_min)
     return inside | covered, overruled
 

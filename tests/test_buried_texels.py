@@ -60,3 +60,34 @@ def test_the_light_map_holds_the_visible_floors_light(bakes):
     np.testing.assert_array_equal(off[:COLUMN], lit[:COLUMN])
     np.testing.assert_allclose(off, as_cycles, rtol=1e-6, atol=1e-7)
     assert (cycles.lightmaps["Floor"][ROW, COLUMN + 1:, 3] == 1).all()
+
+
+def test_a_bake_without_indirect_light_buries_them_too():
+    """Direct light alone (Passes: Indirect off): the texels the wall cuts or covers within the dilation's
+    reach of the lit floor are buried, and the light map fills the wall's foot from the open floor;
+    Cycles' convention (``as_cycles``) keeps the cut texel dim. Only unlit samples that near the lit
+    floor are voted on."""
+    wall_x = -2 + (COLUMN + 0.5 + 0.125) * TEXEL
+    result = pipeline.bake(_scene(wall_x), preset("FINAL", indirect=False, threads=1))
+    counters = result.stats["counters"]
+    buried = result.buried["Floor"]
+    # The last lit texels are COLUMN - 1's (the cut one holds its footprint's mean at every sample).
+    assert buried[:, COLUMN:COLUMN - 1 + RINGS + 1].all() and not buried[:, :COLUMN].any()
+    assert not buried[:, COLUMN - 1 + RINGS + 1:].any()  # past the reach: not voted
+    assert counters["texels_buried"] == int(buried.sum())
+    # The cut column's two inside samples per row and the RINGS - 1 columns past it, 2x2 each.
+    assert counters["texel_samples_inside_geometry"] == 2 * RES + 4 * (RINGS - 1) * RES
+    assert "photons_emitted" not in counters
+    lit = result.lightmaps["Floor"][ROW, :, :3].mean(axis=1)
+    as_cycles = result.as_cycles("Floor")[ROW].mean(axis=1)
+    assert 0.6 < as_cycles[COLUMN] / as_cycles[COLUMN - 1] < 0.95
+    assert (as_cycles[COLUMN + 1:] == 0).all()
+    # The cut texel and the next one under the wall, which a bilinear filter reads at the wall's foot.
+    assert lit[COLUMN] == pytest.approx(lit[COLUMN - 1], rel=0.05)
+    assert lit[COLUMN + 1] == pytest.approx(lit[COLUMN], rel=0.05)
+    # Switched off, the light map keeps Cycles' dark foot and casts no validity ray.
+    off = pipeline.bake(_scene(wall_x), preset("FINAL", indirect=False, threads=1,
+                                               deviations=Deviations(buried_texels=False)))
+    assert not off.buried["Floor"].any() and "validity_rays" not in off.stats["counters"]
+    dark = off.lightmaps["Floor"][ROW, :, :3].mean(axis=1)
+    assert dark[COLUMN] / dark[COLUMN - 1] < 0.95
