@@ -188,9 +188,11 @@ COVERED_COS = 0.97
 over it. A corner's other face, often lit (Sponza's column flutes by the lamps: -0.85 to -0.91), does not."""
 BACKFACE_FRACTION = 0.5
 """A sample is inside geometry when more than this fraction of its rays hit back faces."""
-VALIDITY_FOOTPRINT_PER_AXIS = 4
-"""Jittered points per axis (16 per texel) that measure how much of a texel straddling a solid's
-boundary (a floor texel at a wall's foot) lies inside it (core/validity.py ``indirect_weights``)."""
+VALIDITY_FOOTPRINT_PER_AXIS = 6
+"""Jittered points per axis (36 per texel) that measure how much of a texel straddling a solid's
+boundary (a floor texel at a wall's foot) lies inside it (core/validity.py ``indirect_weights``).
+With 16 the share's noise was a tenth of the building's squared error at 4 texels/m held; 64 points
+gain a little more for twice the votes (docs/DEVIATIONS.md texel-validity)."""
 SHARE_TOLERANCE = 1e-6
 """A texel whose footprint's outside share is this close to 1 is whole, not buried (deviation:
 buried-texels, core/lightmaps.py): the validity weights' float rounding."""

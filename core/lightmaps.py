@@ -47,9 +47,9 @@ def outside_shares(t) -> np.ndarray:
     inside part at 0. No camera sees that part, but a game engine's bilinear filter spreads the
     texel over the visible floor up to the wall: a dark line along every wall's foot. The light map
     takes a buried texel's light from its whole neighbours instead (the dilation). Not its own
-    outside part's mean (its value over the share): the share is voted at 16 points and the direct
-    light's footprint at 64 others, and on Sponza at 16 texels/m the quotient put 1.5 % of the
-    texels a wall cuts above 1.2x their brightest whole neighbour (up to 2.2x).
+    outside part's mean (its value over the share): the share and the direct light's footprint are
+    voted at different points, and on Sponza at 16 texels/m (16 share points, 64 direct ones) the
+    quotient put 1.5 % of the texels a wall cuts above 1.2x their brightest whole neighbour (up to 2.2x).
     """
     raster = t.raster
     if t.indirect_weight is None:

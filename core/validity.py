@@ -24,7 +24,7 @@ import numpy as np
 from .constants import (BACKFACE_FRACTION, COVERED_COS, COVERED_TEXELS, EVIDENCE_COS, EVIDENCE_PHOTONS,
                         EVIDENCE_REACH, STREAM_VALIDITY, STREAM_VALIDITY_FOOTPRINT, VALIDITY_FOOTPRINT_PER_AXIS,
                         VALIDITY_RAYS)
-from .executor import TEXEL_CHUNK, slices
+from .executor import TEXEL_CHUNK, Executor, slices
 from .rays import RayCaster
 from .sampling import cosine_hemisphere, orthonormal_basis
 from .texels import footprint_texel_points
@@ -149,7 +149,7 @@ def sample_validity(scene, caster: RayCaster, density, target_index: int, points
                 inside[voted], covered[voted] = vote, cast
         inside, overruled = verdict(inside, covered, caster, density, points.p, points.n_geometric, R_min, settings)
         weights, footprint_rays = indirect_weights(scene, caster, density, target_index, points, inside, settings,
-                                                   R_min, stream, cover)
+                                                   R_min, stream, cover, executor, progress)
     stats.add(texel_samples_inside_geometry=int(inside.sum()), validity_rays=rays + footprint_rays,
               texel_samples_photon_evidence=overruled, texel_samples_covered=int(covered.sum()))
     return inside, weights
@@ -209,7 +209,7 @@ def reached_by_photons(caster: RayCaster, density, p: np.ndarray, n: np.ndarray,
 
 
 def indirect_weights(scene, caster, density, target_index: int, points, inside: np.ndarray, settings, R_min: float,
-                     stream: int, cover: float = 0.0) -> tuple[np.ndarray, int]:
+                     stream: int, cover: float = 0.0, executor=None, progress=None) -> tuple[np.ndarray, int]:
     """Each texel sample's share of its texel's indirect light, (n,) float64, and the rays cast.
 
     Samples inside geometry get none. A texel whose samples straddle a solid's boundary (a floor
@@ -218,8 +218,9 @@ def indirect_weights(scene, caster, density, target_index: int, points, inside: 
     find no light: the 2x2 samples alone would make that share 0 or 1/2 where it is anything in
     between (the occluded building at 4 texels/m: texels 1 cm from a wall at half of Cycles' light
     or twice it). The share is voted at VALIDITY_FOOTPRINT_PER_AXIS^2 jittered points over the
-    footprint Cycles integrates (``settings.direct_footprint_side``), as the samples are; ``cover``:
-    as :func:`inside_geometry`'s, points that near under a surface count as inside.
+    footprint Cycles integrates (``settings.direct_footprint_side``), as the samples are
+    (:func:`texel_validity`, chunked over ``executor``, one thread if None); ``cover``: as
+    :func:`inside_geometry`'s, points that near under a surface count as inside.
     """
     w = points.weight.astype(np.float64)
     if not inside.any():
@@ -234,10 +235,9 @@ def indirect_weights(scene, caster, density, target_index: int, points, inside: 
                                 settings.direct_footprint_side)
     rays = 0
     if len(fp):
-        serial = caster.serial()
-        fp_inside, fp_covered, rays = inside_geometry(
-            serial, serial.face_normals, fp.p, fp.n_geometric,
-            np.random.default_rng([settings.seed, STREAM_VALIDITY_FOOTPRINT, stream, 1]), cover=cover)
+        fp_inside, fp_covered, rays = texel_validity(caster, fp, [settings.seed, STREAM_VALIDITY_FOOTPRINT, stream, 1],
+                                                     executor if executor is not None else Executor(1), progress,
+                                                     cover)
         fp_inside, _ = verdict(fp_inside, fp_covered, caster, density, fp.p, fp.n_geometric, R_min, settings)
         fw = fp.weight.astype(np.float64)
         fp_total = np.bincount(fp.texel, weights=fw, minlength=size)
