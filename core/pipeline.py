@@ -43,8 +43,8 @@ from .rays import RayCaster
 from .refinement import gather_sources, light_photons, refine_records
 from .scene import Scene, SceneError
 from .settings import BakeSettings
-from .validity import sample_validity
 from .stats import BakeStats
+from .validity import sample_validity
 
 
 @dataclass
