@@ -242,5 +242,8 @@ HIT_GRID_CELLS_PER_HIT = 0.125
 HIT_GRID_NEAR = 1.0
 """A gathering hit nearer to its record than this times its distance from its grid cell's centroid is
 shaded on its own (core/real_rays.py): the cell would stand for much of the record's hemisphere."""
+GAP_COS = 0.5
+"""A near gathering hit whose normal is within 60 degrees of facing its record's normal lies in a gap
+between the two surfaces and gathers its own indirect light (deviation: gap-gathering, core/real_rays.py)."""
 HIT_GRID_DIRECT_SAMPLES = 4
 """Shadow-ray samples per soft light at each grid cell (hits read the grid, so its noise is shared)."""

@@ -45,7 +45,7 @@ class PhotonDensity:
         self.last_hit = (photons.p + photons.wi * photons.d_prev[:, None]).astype(np.float32)
         self.is_indirect = photons.is_indirect
         self.queries = 0
-        self._lit_back = None
+        self._sides = None
 
     def harmonic_mean_distances(self, p_k: np.ndarray, n_k: np.ndarray, count: int, R_max: float) -> np.ndarray:
         """(B,) float64 R_k for B records (p_k, n_k (B, 3)): Figure 3's harmonic mean; R_max where none fit.
@@ -76,15 +76,28 @@ class PhotonDensity:
         np.divide(kept, inverse, out=R, where=kept > 0)
         return R
 
-    def lit_back_faces(self, face_normals: np.ndarray) -> np.ndarray:
-        """(T,) bool: triangles that photons reached on the side their face normal points away from
-        (a wall modelled with its normals flipped: light arrives on its back). Computed once: the photons
-        hit one scene, whose ``face_normals`` every call passes."""
-        if self._lit_back is None:
+    def photons_per_side(self, face_normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(front, back): (T,) int64 photons that arrived on each triangle's front (the side its face normal
+        points to) and on its back. Computed once: the photons hit one scene, whose ``face_normals`` every
+        call passes."""
+        if self._sides is None:
             triangle = self.photons.triangle.astype(np.int64)
             back = np.einsum("ij,ij->i", self.n.astype(np.float64), np.take(face_normals, triangle, axis=0)) < 0
-            self._lit_back = np.bincount(triangle[back], minlength=len(face_normals)) > 0
-        return self._lit_back
+            T = len(face_normals)
+            self._sides = (np.bincount(triangle[~back], minlength=T), np.bincount(triangle[back], minlength=T))
+        return self._sides
+
+    def lit_back_faces(self, face_normals: np.ndarray) -> np.ndarray:
+        """(T,) bool: triangles that photons reached on the side their face normal points away from
+        (a wall modelled with its normals flipped: light arrives on its back)."""
+        return self.photons_per_side(face_normals)[1] > 0
+
+    def back_lit_faces(self, face_normals: np.ndarray) -> np.ndarray:
+        """(T,) bool: triangles that more photons reached on their back than on their front: lit from
+        behind, so their normals point the wrong way (a photon that slipped through a crack onto the back
+        of a front-lit wall does not make it one)."""
+        front, back = self.photons_per_side(face_normals)
+        return back > front
 
     def photon_reach(self, p_k: np.ndarray, n_k: np.ndarray, count: int) -> np.ndarray:
         """(B,) float64 distance from each p_k (B, 3) to its ``count``-th nearest indirect photon on

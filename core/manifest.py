@@ -59,7 +59,9 @@ Schema (``schema_version`` 1)
     of them ``texel_samples_covered`` (int, samples under a sheet nearer than a tenth of a texel),
     and ``texel_samples_photon_evidence`` (int, back-face votes a photon overruled),
     ``validity_rays`` (int); a bake without indirect light votes only on unlit samples near lit
-    texels, to bury texels for the light map.
+    texels, to bury texels for the light map. Pass 3: ``refine_gap_hits`` (int, gathering hits
+    in a gap before their record's surface that gathered their own indirect light, deviation
+    gap-gathering; ``holes_refine_gap_hits`` for the hole records).
 ``warnings`` : list of str
     Everything the bake reported but did not stop for (skipped objects, clamped
     values, degenerate triangles).

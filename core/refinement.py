@@ -36,13 +36,13 @@ from .photons import PhotonLighting
 from .real_rays import RealHits, indirect_on_both_sides, shade_real, trace_real
 from .record_walls import open_walls, wall_distances
 from .settings import BakeSettings, Deviations
-from .validity import overrule_by_photons
+from .validity import open_backs, overrule_by_photons
 from .virtual_rays import fill_virtual
 
 RECORD_BATCH = 256
 """Records refined per chunk: ~75k cells, a few tenths of a second of work."""
 COUNTERS = ("refine_rays_cast", "refine_probe_rays", "refine_visibility_rays", "refine_path_visibility_rays",
-            "refine_shadow_rays",
+            "refine_shadow_rays", "refine_gap_hits",
             "refine_virtual_rays", "refine_cells_virtual", "refine_cells", "refine_records_inside",
             "refine_extra_gathers")
 
@@ -239,13 +239,14 @@ def refine_batch(scene, caster, sources: GatherSources, p_k: np.ndarray, n_k: np
     empty = sums.empty_cells()  # Figure 4c: real rays for the cells no ray reached
     hits.append(trace_real(caster, frames, empty, sums, rng)[0])
     real = RealHits.concatenate(hits)
-    shadow_rays = shade_real(scene, caster, sources, real, sums, rng)
+    shadow_rays, gap_hits = shade_real(scene, caster, sources, real, sums, rng, n)
     E, grad_r, grad_t, R = sums.irradiance_and_gradients(t1, t2, n, r_floor)
     inside = np.zeros(B, bool)
     # deviation: record-validity, docs/DEVIATIONS.md
     if sources.deviations.record_validity and hole is not None and hole.any():
         real_rays = np.bincount(empty // H.cells, minlength=B) + probe_rays // max(B, 1)
-        inside = record_inside_geometry(caster, real, H.cells, real_rays) & hole
+        inside = record_inside_geometry(caster, real, H.cells, real_rays,
+                                        open_backs(caster, sources.density, sources.deviations)) & hole
         if sources.deviations.photon_evidence:  # deviation: photon-evidence, docs/DEVIATIONS.md
             overrule_by_photons(inside, caster, sources.density, p_k, n_k, R_min)
         E[inside], grad_r[inside], grad_t[inside] = 0.0, 0.0, 0.0
@@ -257,6 +258,7 @@ def refine_batch(scene, caster, sources: GatherSources, p_k: np.ndarray, n_k: np
         "refine_visibility_rays": visibility_rays,
         "refine_path_visibility_rays": path_rays,
         "refine_shadow_rays": shadow_rays,
+        "refine_gap_hits": gap_hits,
         "refine_virtual_rays": virtual,
         "refine_cells_virtual": cells_virtual,
         "refine_cells": B * H.cells,
@@ -264,7 +266,8 @@ def refine_batch(scene, caster, sources: GatherSources, p_k: np.ndarray, n_k: np
     }
 
 
-def record_inside_geometry(caster, real: RealHits, cells: int, real_rays: np.ndarray) -> np.ndarray:
+def record_inside_geometry(caster, real: RealHits, cells: int, real_rays: np.ndarray,
+                           open_back: np.ndarray | None = None) -> np.ndarray:
     """(B,) bool: records whose real gathering rays (``real_rays`` (B,) cast each) mostly hit back faces.
 
     Texel validity's test (:mod:`core.validity`, BACKFACE_FRACTION) with the hundreds of rays a
@@ -273,9 +276,11 @@ def record_inside_geometry(caster, real: RealHits, cells: int, real_rays: np.nda
     none (the occluded building flags 105 of its 923). Only hole records are asked: a pass-2 record
     stands where a photon arrived, which proves light reaches it (a lamp inside a box whose normals
     face out lights the box's inside). Records with fewer than VALIDITY_RAYS real rays (photons lent
-    the rest) are left alone.
+    the rest) are left alone. open_back : as :func:`core.validity.inside_geometry`'s.
     """
     back = np.einsum("ij,ij->i", np.take(caster.face_normals, real.triangle, axis=0), real.direction) > 0
+    if open_back is not None:
+        back &= ~np.take(open_back, real.triangle)
     back_hits = np.bincount(real.cell[back] // cells, minlength=len(real_rays))
     return (real_rays >= VALIDITY_RAYS) & (back_hits > BACKFACE_FRACTION * real_rays)
 

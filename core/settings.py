@@ -25,7 +25,7 @@ class Deviations:
     photon_evidence: bool = True
     """A sample or hole record the back-face votes put inside geometry is outside after all when a photon
     arrived within half of R_min on a like-facing surface that sees its side (walls whose normals point
-    the wrong way)."""
+    the wrong way); and the votes do not count the backs of faces lit mostly from behind."""
     wall_sectors: bool = True
     """Records find the walls in their tangent plane; light is not interpolated past them."""
     zone_photon_floor: bool = True
@@ -61,6 +61,9 @@ class Deviations:
     hit_grid: bool = True
     """Pass 3: a gathering hit that sees its cell's centroid reads E_direct + E_indirect from a grid of
     cells on its triangle, computed once per cell, instead of a record lookup and shadow rays of its own."""
+    gap_gathering: bool = True
+    """Pass 3 (with hit_grid): a hit near its record whose surface faces the record's gathers its indirect
+    light with one ray of its own, read from the grid, instead of the records around it."""
     nearest_photon_fallback: bool = True
     """Pass 3: a gathering hit no record accepts takes the nearest visible photon's irradiance."""
     gradient_limiting: bool = True

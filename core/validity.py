@@ -34,14 +34,17 @@ LATER_ROUND = 2
 
 
 def inside_geometry(caster: RayCaster, face_normals: np.ndarray, p: np.ndarray, n: np.ndarray,
-                    rng: np.random.Generator, rays: int = VALIDITY_RAYS, cover: float = 0.0
-                    ) -> tuple[np.ndarray, np.ndarray, int]:
+                    rng: np.random.Generator, rays: int = VALIDITY_RAYS, cover: float = 0.0,
+                    open_back: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, int]:
     """(inside (m,) bool: samples that see mostly back faces; covered (m,) bool: samples whose first
     round of rays all hit, nearer than ``cover``, a face turned back toward them (none when 0); the
     rays cast).
 
     p, n : (m, 3) sample positions and geometric normals (front side).
     face_normals : (T, 3) unit geometric normals of the scene's triangles.
+    open_back : (T,) bool triangles whose back is open space (lit mostly from behind: a wall whose normals
+        point the wrong way, :func:`open_backs`); meeting their back is no sign of being inside. None: every
+        back counts.
     A covered sample lies in a gap a fraction of a texel high (a floor a slab rests on 1 mm above):
     light reaches it only past the gap's far edges and no camera sees it, whichever way the faces
     point; Ward's weights would carry the open floor's light in (Sponza 16/m: 168 interior texels
@@ -74,6 +77,8 @@ def inside_geometry(caster: RayCaster, face_normals: np.ndarray, p: np.ndarray, 
         hit = hits.hit
         is_back = np.zeros(len(d), bool)
         is_back[hit] = np.einsum("ij,ij->i", np.take(face_normals, hits.triangle[hit], axis=0), d[hit]) > 0
+        if open_back is not None:
+            is_back[hit] &= ~np.take(open_back, hits.triangle[hit])
         back[open_] += is_back.reshape(-1, step).sum(axis=1)
         if done == 0 and cover > 0:
             under = _under_cover(hits, face_normals, n_ray, cover)
@@ -103,19 +108,19 @@ def _under_cover(hits, face_normals: np.ndarray, n: np.ndarray, cover: float) ->
     return near
 
 
-def texel_validity(caster: RayCaster, points, seed: list, executor, progress, cover: float = 0.0
-                   ) -> tuple[np.ndarray, np.ndarray, int]:
+def texel_validity(caster: RayCaster, points, seed: list, executor, progress, cover: float = 0.0,
+                   open_back: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, int]:
     """Which texel samples lie inside closed geometry, chunked over the executor: :func:`inside_geometry`'s
     (inside (n,) bool, covered (n,) bool, rays cast).
 
     points : :class:`core.texels.TexelPoints`. seed : the generator prefix; chunk i draws from
-    ``default_rng([*seed, i])``.
+    ``default_rng([*seed, i])``. open_back : as :func:`inside_geometry`'s.
     """
     serial = caster.serial()
 
     def run(index, s):
         return inside_geometry(serial, serial.face_normals, points.p[s], points.n_geometric[s],
-                               np.random.default_rng([*seed, index]), cover=cover)
+                               np.random.default_rng([*seed, index]), cover=cover, open_back=open_back)
 
     parts = executor.map_chunks(run, slices(len(points), TEXEL_CHUNK), progress)
     rays = sum(r for *_, r in parts)
@@ -142,7 +147,7 @@ def sample_validity(scene, caster: RayCaster, density, target_index: int, points
         if settings.deviations.texel_validity:  # deviation: texel-validity, docs/DEVIATIONS.md
             asked = points if voted is None else points.take(np.flatnonzero(voted))
             vote, cast, rays = texel_validity(caster, asked, [settings.seed, STREAM_VALIDITY, stream], executor,
-                                              progress, cover)
+                                              progress, cover, open_backs(caster, density, settings.deviations))
             if voted is None:
                 inside, covered = vote, cast
             else:
@@ -153,6 +158,17 @@ def sample_validity(scene, caster: RayCaster, density, target_index: int, points
     stats.add(texel_samples_inside_geometry=int(inside.sum()), validity_rays=rays + footprint_rays,
               texel_samples_photon_evidence=overruled, texel_samples_covered=int(covered.sum()))
     return inside, weights
+
+
+def open_backs(caster: RayCaster, density, deviations) -> np.ndarray | None:
+    """(T,) bool triangles the back-face votes do not count as a solid's inside, or None (count all):
+    those lit mostly on their back (deviation: photon-evidence), a wall modelled with its normals
+    flipped, which Cycles lights on both sides. No photon lands on the inside of a closed solid, but
+    one may slip through a crack onto the back of a front-lit face: Sponza has 612 triangles with a
+    photon on their back (945 photons of 2.85 M), most of them on walls lit from the front."""
+    if deviations.photon_evidence and density is not None:
+        return density.back_lit_faces(caster.face_normals)
+    return None
 
 
 def verdict(inside: np.ndarray, covered: np.ndarray, caster: RayCaster, density, p: np.ndarray, n: np.ndarray,
@@ -237,7 +253,7 @@ def indirect_weights(scene, caster, density, target_index: int, points, inside: 
     if len(fp):
         fp_inside, fp_covered, rays = texel_validity(caster, fp, [settings.seed, STREAM_VALIDITY_FOOTPRINT, stream, 1],
                                                      executor if executor is not None else Executor(1), progress,
-                                                     cover)
+                                                     cover, open_backs(caster, density, settings.deviations))
         fp_inside, _ = verdict(fp_inside, fp_covered, caster, density, fp.p, fp.n_geometric, R_min, settings)
         fw = fp.weight.astype(np.float64)
         fp_total = np.bincount(fp.texel, weights=fw, minlength=size)

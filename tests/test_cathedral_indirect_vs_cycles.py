@@ -8,12 +8,13 @@ deviation (docs/DEVIATIONS.md) the capitals, columns and floor that face them we
 geometry and left black. Judged on 8x8-texel block means (the references' per-texel noise at 256
 spp would hide nothing else), blocks whose reference mean is at least 5 % of the map's.
 
-Measured (the map grows to 400^2 to hold the charts; 1,536 blocks judged): mean 0.999 of Cycles,
-3.8 % of the blocks at half Cycles' light or less, 15.9 % off by more than 20 %; with photon
-evidence off 0.877, 18.2 % and 38.0 %. The dark blocks left are 4-8-texel pieces of small surfaces
-(column-base tops, capital undersides, tracery) that the back-face vote still puts inside because
-no like-facing photon landed near them. bench/cathedral_indirect.py runs the 512^2, 1,024-spp
-version at detail 0.3 (27.9 % per texel, mean 1.001, 9.8 % of blocks off by more than 20 %).
+Measured (the map grows to 400^2 to hold the charts; 1,536 blocks judged): mean 1.037 of Cycles,
+1.8 % of the blocks at half Cycles' light or less, 9.2 % off by more than 20 %; before session 21
+counted faces lit from behind as open space and gathered in gaps (docs/DEVIATIONS.md photon-evidence,
+gap-gathering) 1.033, 3.1 % and 11.8 %, the dark blocks 4-8-texel pieces of small surfaces (column-base
+tops, capital undersides, tracery) that no like-facing photon reached; in session 12, with photon
+evidence off, 0.877, 18.2 % and 38.0 %. bench/cathedral_indirect.py runs the 512^2, 1,024-spp version at detail 0.3 (20.5 %
+per texel, mean 1.038, 6.8 % of blocks off by more than 20 %).
 """
 from __future__ import annotations
 
@@ -72,5 +73,5 @@ def test_cathedral_indirect_light_has_no_black_patches_against_cycles(blender, r
           f"below 0.5 of Cycles {np.mean(ratio < 0.5):.3f}; off by > 20 % {np.mean(np.abs(ratio - 1) > 0.2):.3f}")
     assert judged.sum() > 200
     assert abs(mean - 1) < 0.05  # 0.877 without photon evidence
-    assert np.mean(ratio < 0.5) < 0.06  # the black patches: blocks at half Cycles' light or less (0.182 without)
-    assert np.mean(np.abs(ratio - 1) > 0.2) < 0.22  # 0.380 without
+    assert np.mean(ratio < 0.5) < 0.025  # the black patches: blocks at half Cycles' light or less (0.031 before)
+    assert np.mean(np.abs(ratio - 1) > 0.2) < 0.11  # 0.118 before

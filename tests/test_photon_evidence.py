@@ -33,7 +33,8 @@ def test_a_room_whose_walls_face_out_lights_its_floor_as_one_whose_walls_face_in
     inward, _ = _floor(quality, False)
     outward, counters = _floor(quality, True)
     assert inward.mean() > 0.5
-    assert counters["texel_samples_photon_evidence"] > 0  # the votes put floor samples inside; photons overruled
+    # Walls lit on their backs are open space (tests/test_back_lit_faces.py): no sample is voted inside.
+    assert counters["texel_samples_inside_geometry"] == 0
     assert abs(outward.mean() / inward.mean() - 1) < 0.1
     assert (outward > 0.25 * inward.mean()).all()  # no black texel
 
@@ -43,3 +44,26 @@ def test_without_photon_evidence_the_floor_before_outward_walls_goes_black():
     assert counters["texel_samples_photon_evidence"] == 0
     assert counters["texel_samples_inside_geometry"] > 0
     assert (blacked == 0).any()
+
+
+def test_photons_that_landed_nearby_prove_light_reaches_a_point_and_none_land_under_a_slab():
+    """The evidence itself (``reached_by_photons``): the vote's other half, for faces lit on both sides."""
+    import numpy as np
+
+    from pdic.core.density import PhotonDensity
+    from pdic.core.photons import trace_photons
+    from pdic.core.rays import RayCaster
+    from pdic.core.validity import overrule_by_photons
+
+    from scenes import lit, quad
+
+    slab = [quad([0.2, 0.2, 0.01], [0.3, 0, 0], [0, 0.3, 0]), quad([0.2, 0.2, 0.01], [0, 0.3, 0], [0.3, 0, 0])]
+    tris = np.concatenate(box_faces() + slab)  # a two-sided slab 1 cm over the floor
+    caster = RayCaster(tris)
+    photons, _ = trace_photons(lit(tris, BOX_LAMP), caster, 20_000, 4, seed=2)
+    density = PhotonDensity(photons)
+    p = np.array([[0.7, 0.7, 0.0], [0.35, 0.35, 0.0]])  # the open floor, the floor under the slab's middle
+    n = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    inside = np.ones(2, bool)  # as if the back-face vote had put both inside
+    assert overrule_by_photons(inside, caster, density, p, n, R_min=0.02) == 1
+    assert inside.tolist() == [False, True]
