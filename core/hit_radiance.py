@@ -58,23 +58,6 @@ class HitGrid:
         """(E (h, 3) float64 of each hit's cell, the cell's centroid (h, 3), its albedo (h, 3) float64 or
         None) at hits: triangle (h,) int64, Embree barycentric (h, 2), back (h,) bool (the ray reached
         the side the face normal points away from)."""
-        cell, row = self.cells(triangle, barycentric, back)
-        E = np.take(self.E.reshape(-1, 3), row, axis=0).astype(np.float64)
-        rho = None if self.albedo is None else np.take(self.albedo, cell, axis=0).astype(np.float64)
-        return E, np.take(self.centroid, cell, axis=0), rho
-
-    def indirect(self, triangle: np.ndarray, barycentric: np.ndarray, back: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray | None]:
-        """(E_indirect (h, 3) float64 of each hit's cell, its albedo (h, 3) float64 or None): as
-        :meth:`lookup`, without the cell's direct light."""
-        cell, row = self.cells(triangle, barycentric, back)
-        E = (np.take(self.E.reshape(-1, 3), row, axis=0).astype(np.float64)
-             - np.take(self.E_direct.reshape(-1, 3), row, axis=0))
-        rho = None if self.albedo is None else np.take(self.albedo, cell, axis=0).astype(np.float64)
-        return np.maximum(E, 0.0), rho
-
-    def cells(self, triangle: np.ndarray, barycentric: np.ndarray, back: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(cell (h,) int64, its row in E's flattened (2 V) sides) of each hit (as :meth:`lookup`'s)."""
         L = self.side[triangle]
         u = np.clip(barycentric[:, 0], 0.0, 1.0)
         v = np.clip(barycentric[:, 1], 0.0, 1.0)
@@ -84,7 +67,9 @@ class HitGrid:
         i = np.minimum(i, L - 1 - j)  # a hit on the far edge (u + v = 1) rounds into the row's last cell
         upper = (x - i) + (y - j) > 1.0
         cell = self.offset[triangle] + j * (2 * L - j) + 2 * i + upper
-        return cell, back * self.E.shape[1] + cell
+        E = np.take(self.E.reshape(-1, 3), back * self.E.shape[1] + cell, axis=0).astype(np.float64)
+        rho = None if self.albedo is None else np.take(self.albedo, cell, axis=0).astype(np.float64)
+        return E, np.take(self.centroid, cell, axis=0), rho
 
 
 def _centroids(positions: np.ndarray, triangle: np.ndarray, i: np.ndarray, j: np.ndarray, upper: np.ndarray,

@@ -12,7 +12,8 @@ the gathering ray that found the hit.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import copy
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -138,22 +139,24 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
         E[own], own_rays = _irradiance_at_hits(scene, caster, sources, q[own], n_hit[own], rng)
         rays += own_rays
     if len(in_gap):
-        E[in_gap], gap_rays = gap_irradiance(scene, caster, sources.hit_grid, q[in_gap], n_hit[in_gap], rng)
+        E[in_gap], gap_rays = gap_irradiance(scene, caster, sources, q[in_gap], n_hit[in_gap], rng)
         rays += gap_rays
     return rho * E / np.pi, rays, len(in_gap)
 
 
-def gap_irradiance(scene, caster, grid, q: np.ndarray, n_hit: np.ndarray, rng: np.random.Generator
+def gap_irradiance(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng: np.random.Generator
                    ) -> tuple[np.ndarray, int]:
     """(E_direct + E_indirect (h, 3), rays spent) at hits q facing n_hit (h, 3) that face the record
     they were gathered for from close by: E_indirect from one cosine-weighted ray of their own, whose
-    hit y sends albedo x (the grid's indirect light at y + y's own direct light) (deviation:
-    gap-gathering).
+    hit y sends albedo x (E_direct + E_indirect at y, each its own) (deviation: gap-gathering).
 
     Such a hit lies in a gap between the record's surface and its own (the back of window tracery
     2 cm before a wall, a frame, a pipe): the record's surface covers much of the hit's hemisphere,
     which the records around the gap, zones metres wide on the open wall, do not see. Their
     interpolation lit the wall patch behind the cathedral's tracery at 2.2x a path tracer's.
+    y's records must see it, as a texel's do (deviation: record-visibility): y often lies in the
+    gap's far side, under a slab or a box whose inside records lie a centimetre away on the same
+    side, which the hit grid's cells, read without that test, let through.
     """
     direct = direct_irradiance(scene, caster, q, n_hit, n_hit, 1, rng)
     t1, t2 = orthonormal_basis(n_hit)
@@ -170,14 +173,14 @@ def gap_irradiance(scene, caster, grid, q: np.ndarray, n_hit: np.ndarray, rng: n
         back = np.einsum("ij,ij->i", n_face, d[hit]) > 0
         n_y = np.where(back[:, None], -n_face, n_face)
         y = origin[hit] + d[hit] * hits.t[hit, None]
-        # The cell's indirect light and y's own direct light: in a gap the cell's centroid may lie
-        # out in a lamp's light while y lies in the gap's shadow.
-        E_y, rho_y = grid.indirect(tri, bary, back)
+        seen = copy.copy(sources.lookup)  # shares the records' arrays and zone grid
+        seen.caster = caster
+        before = caster.rays_cast  # the records' visibility rays and the fallback's
+        E_y, _ = indirect_at_hits(caster, replace(sources, lookup=seen), y, n_y)
+        rays += caster.rays_cast - before
         direct_y = direct_irradiance(scene, caster, y, n_y, n_y, 1, rng)
         rays += sum(direct_y.shadow_rays.values())
-        if rho_y is None:
-            rho_y = albedo_at(scene, tri, bary).astype(np.float64)
-        E[hit] += rho_y * (E_y + direct_y.E)  # pi x the radiance leaving y, per unit cosine pdf
+        E[hit] += albedo_at(scene, tri, bary) * (E_y + direct_y.E)  # pi x the radiance leaving y, per cosine pdf
     return E, rays
 
 

@@ -9,12 +9,12 @@ geometry and left black. Judged on 8x8-texel block means (the references' per-te
 spp would hide nothing else), blocks whose reference mean is at least 5 % of the map's.
 
 Measured (the map grows to 400^2 to hold the charts; 1,536 blocks judged): mean 1.037 of Cycles,
-1.8 % of the blocks at half Cycles' light or less, 9.2 % off by more than 20 %; before session 21
+1.8 % of the blocks at half Cycles' light or less, 9.6 % off by more than 20 %; before session 21
 counted faces lit from behind as open space and gathered in gaps (docs/DEVIATIONS.md photon-evidence,
 gap-gathering) 1.033, 3.1 % and 11.8 %, the dark blocks 4-8-texel pieces of small surfaces (column-base
 tops, capital undersides, tracery) that no like-facing photon reached; in session 12, with photon
-evidence off, 0.877, 18.2 % and 38.0 %. bench/cathedral_indirect.py runs the 512^2, 1,024-spp version at detail 0.3 (20.5 %
-per texel, mean 1.038, 6.8 % of blocks off by more than 20 %).
+evidence off, 0.877, 18.2 % and 38.0 %. bench/cathedral_indirect.py runs the 512^2, 1,024-spp
+version at detail 0.3 (20.6 % per texel, mean 1.039, 6.9 % of blocks off by more than 20 %).
 """
 from __future__ import annotations
 
