@@ -173,11 +173,11 @@ def gap_irradiance(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng
         back = np.einsum("ij,ij->i", n_face, d[hit]) > 0
         n_y = np.where(back[:, None], -n_face, n_face)
         y = origin[hit] + d[hit] * hits.t[hit, None]
+        view = caster.serial()  # counts the records' visibility rays and the fallback's on its own
         seen = copy.copy(sources.lookup)  # shares the records' arrays and zone grid
-        seen.caster = caster
-        before = caster.rays_cast  # the records' visibility rays and the fallback's
-        E_y, _ = indirect_at_hits(caster, replace(sources, lookup=seen), y, n_y)
-        rays += caster.rays_cast - before
+        seen.caster = view
+        E_y, _ = indirect_at_hits(view, replace(sources, lookup=seen), y, n_y)
+        rays += view.rays_cast
         direct_y = direct_irradiance(scene, caster, y, n_y, n_y, 1, rng)
         rays += sum(direct_y.shadow_rays.values())
         E[hit] += albedo_at(scene, tri, bary) * (E_y + direct_y.E)  # pi x the radiance leaving y, per cosine pdf
