@@ -152,11 +152,11 @@ def gap_irradiance(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng
 
     Such a hit lies in a gap between the record's surface and its own (the back of window tracery
     2 cm before a wall, a frame, a pipe): the record's surface covers much of the hit's hemisphere,
-    which the records around the gap, zones metres wide on the open wall, do not see. Their
-    interpolation lit the wall patch behind the cathedral's tracery at 2.2x a path tracer's.
-    y's records must see it, as a texel's do (deviation: record-visibility): y often lies in the
-    gap's far side, under a slab or a box whose inside records lie a centimetre away on the same
-    side, which the hit grid's cells, read without that test, let through.
+    which the records around the gap, out on the open wall with zones tens of centimetres wide, do
+    not see: they lit the wall patch behind the cathedral's tracery at 2.2x a path tracer's. y's
+    records must see it, as a texel's do (deviation: record-visibility): y often lies on the gap's
+    far side, under a slab or a box whose inside records lie a centimetre away on the same side,
+    which the hit grid's cells, read without that test, let through.
     """
     direct = direct_irradiance(scene, caster, q, n_hit, n_hit, 1, rng)
     t1, t2 = orthonormal_basis(n_hit)
