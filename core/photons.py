@@ -22,7 +22,7 @@ from .albedo import albedo as albedo_at
 from .constants import REFLECTED_SHARE_FLOOR, STREAM_PHOTONS, TRANSPARENT_MAX_LAYERS
 from .executor import Executor, Progress, serial_executor
 from .rays import RayCaster
-from .sampling import cosine_hemisphere, orthonormal_basis
+from .sampling import cosine_hemisphere, to_world
 from .scene import Scene
 
 BATCH_PHOTONS = 65_536
@@ -205,9 +205,7 @@ def trace_photon_batch(scene: Scene, caster: RayCaster, origins: np.ndarray, dir
         q = rho[bounced].max(axis=1)
         bounced = bounced[rng.random(len(bounced)) < q]
         q = rho[bounced].max(axis=1)
-        local = cosine_hemisphere(rng.random((len(bounced), 2)))[0]
-        t1, t2 = orthonormal_basis(n[bounced])
-        d_bounced = local[:, :1] * t1 + local[:, 1:2] * t2 + local[:, 2:3] * n[bounced]
+        d_bounced = to_world(cosine_hemisphere(rng.random((len(bounced), 2)))[0], n[bounced])
         o = np.concatenate([p[go], p[bounced]])
         d = np.concatenate([d[go], d_bounced])
         phi = np.concatenate([phi[go], phi[bounced] * rho[bounced] / q[:, None]])

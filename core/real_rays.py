@@ -22,7 +22,7 @@ from .constants import GAP_COS, HIT_GRID_NEAR
 from .direct import direct_irradiance
 from .gather_cells import CellSums
 from .photon_fallback import NOT_ASKED, NearestPhotons, nearest_photon_seen, photon_irradiance
-from .sampling import cosine_hemisphere, orthonormal_basis
+from .sampling import cosine_hemisphere, to_world
 from .zone_grid import spatial_order
 
 
@@ -92,6 +92,14 @@ def shade_real(scene, caster, sources, hits: RealHits, sums: CellSums, rng: np.r
     return shadow_rays, in_gap
 
 
+def side_met(face_normals: np.ndarray, triangle: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(back (h,) bool: the ray reached its triangle's back side, n (h, 3): the face normal turned toward
+    the ray) for rays ``direction`` (h, 3) that hit ``triangle`` (h,)."""
+    n_face = np.take(face_normals, triangle, axis=0)
+    back = np.einsum("ij,ij->i", n_face, direction) > 0
+    return back, np.where(back[:, None], -n_face, n_face)
+
+
 def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: np.ndarray, q: np.ndarray,
                      direction: np.ndarray, distance: np.ndarray, rng: np.random.Generator,
                      n_record: np.ndarray | None = None) -> tuple[np.ndarray, int, int]:
@@ -108,9 +116,7 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
     Of those near hits, the ones whose surface faces the record's (``n_record`` (h, 3), each hit's
     record normal; deviation: gap-gathering) gather their indirect light with one ray of their own.
     """
-    n_face = np.take(caster.face_normals, triangle, axis=0)
-    back = np.einsum("ij,ij->i", n_face, direction) > 0  # the ray reached the face's back side
-    n_hit = np.where(back[:, None], -n_face, n_face)
+    back, n_hit = side_met(caster.face_normals, triangle, direction)
     if sources.hit_grid is None:
         E, rays = _irradiance_at_hits(scene, caster, sources, q, n_hit, rng)
         return albedo_at(scene, triangle, barycentric).astype(np.float64) * E / np.pi, rays, 0
@@ -159,9 +165,7 @@ def gap_irradiance(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng
     which the hit grid's cells, read without that test, let through.
     """
     direct = direct_irradiance(scene, caster, q, n_hit, n_hit, 1, rng)
-    t1, t2 = orthonormal_basis(n_hit)
-    w = cosine_hemisphere(rng.random((len(q), 2)))[0]
-    d = w[:, :1] * t1 + w[:, 1:2] * t2 + w[:, 2:3] * n_hit
+    d = to_world(cosine_hemisphere(rng.random((len(q), 2)))[0], n_hit)
     origin = caster.offset_origins(q, n_hit, d)
     hits = caster.intersect(origin, d, unit=True)
     E = direct.E.copy()
@@ -169,9 +173,7 @@ def gap_irradiance(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng
     rays = sum(direct.shadow_rays.values()) + len(q)
     if len(hit):
         tri, bary = hits.triangle[hit], hits.barycentric[hit]
-        n_face = np.take(caster.face_normals, tri, axis=0)
-        back = np.einsum("ij,ij->i", n_face, d[hit]) > 0
-        n_y = np.where(back[:, None], -n_face, n_face)
+        _, n_y = side_met(caster.face_normals, tri, d[hit])
         y = origin[hit] + d[hit] * hits.t[hit, None]
         view = caster.serial()  # counts the records' visibility rays and the fallback's on its own
         seen = copy.copy(sources.lookup)  # shares the records' arrays and zone grid

@@ -36,7 +36,7 @@ from .photons import PhotonLighting
 from .real_rays import RealHits, indirect_on_both_sides, shade_real, trace_real
 from .record_walls import open_walls, wall_distances
 from .settings import BakeSettings, Deviations
-from .validity import open_backs, overrule_by_photons
+from .validity import closed_backs, open_backs, overrule_by_photons
 from .virtual_rays import fill_virtual
 
 RECORD_BATCH = 256
@@ -278,9 +278,7 @@ def record_inside_geometry(caster, real: RealHits, cells: int, real_rays: np.nda
     face out lights the box's inside). Records with fewer than VALIDITY_RAYS real rays (photons lent
     the rest) are left alone. open_back : as :func:`core.validity.inside_geometry`'s.
     """
-    back = np.einsum("ij,ij->i", np.take(caster.face_normals, real.triangle, axis=0), real.direction) > 0
-    if open_back is not None:
-        back &= ~np.take(open_back, real.triangle)
+    back = closed_backs(caster.face_normals, real.triangle, real.direction, open_back)
     back_hits = np.bincount(real.cell[back] // cells, minlength=len(real_rays))
     return (real_rays >= VALIDITY_RAYS) & (back_hits > BACKFACE_FRACTION * real_rays)
 

@@ -76,9 +76,7 @@ def inside_geometry(caster: RayCaster, face_normals: np.ndarray, p: np.ndarray, 
         cast += len(d)
         hit = hits.hit
         is_back = np.zeros(len(d), bool)
-        is_back[hit] = np.einsum("ij,ij->i", np.take(face_normals, hits.triangle[hit], axis=0), d[hit]) > 0
-        if open_back is not None:
-            is_back[hit] &= ~np.take(open_back, hits.triangle[hit])
+        is_back[hit] = closed_backs(face_normals, hits.triangle[hit], d[hit], open_back)
         back[open_] += is_back.reshape(-1, step).sum(axis=1)
         if done == 0 and cover > 0:
             under = _under_cover(hits, face_normals, n_ray, cover)
@@ -90,6 +88,16 @@ def inside_geometry(caster: RayCaster, face_normals: np.ndarray, p: np.ndarray, 
         inside[open_[settled_inside]] = True
         open_ = open_[~(settled_inside | settled_outside)]
     return inside, covered, cast
+
+
+def closed_backs(face_normals: np.ndarray, triangle: np.ndarray, direction: np.ndarray,
+                 open_back: np.ndarray | None = None) -> np.ndarray:
+    """(r,) bool: rays ``direction`` (r, 3) that met ``triangle`` (r,) from behind, the back-face votes'
+    evidence of being inside a solid; the backs of ``open_back`` triangles do not count."""
+    back = np.einsum("ij,ij->i", np.take(face_normals, triangle, axis=0), direction) > 0
+    if open_back is not None:
+        back &= ~np.take(open_back, triangle)
+    return back
 
 
 def _under_cover(hits, face_normals: np.ndarray, n: np.ndarray, cover: float) -> np.ndarray:
