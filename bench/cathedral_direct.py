@@ -148,7 +148,7 @@ def main(argv=None):
           f"{job.result.stats.get('seconds', {}).get('direct', float('nan')):.2f} s wall; shadow rays "
           f"{counters.get('shadow_rays', 0):,} + footprint {counters.get('direct_footprint_shadow_rays', 0):,} on "
           f"{counters.get('direct_footprint_texels', 0):,} texels")
-    P = job.result.lightmaps[ob.name][..., :3]
+    P = job.result.as_cycles(ob.name)  # Cycles' convention (the light map fills buried texels)
     H, W = P.shape[:2]
     writeback.set_shading([ob], baked=False)
     t = time.perf_counter()

@@ -19,6 +19,7 @@ lie on. Writes the maps to ``--out``.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import sys
 import time
 from pathlib import Path
@@ -34,6 +35,7 @@ pdic_bootstrap.load()
 import bpy  # noqa: E402
 
 import cycles_reference as cr  # noqa: E402
+from cathedral import cathedral  # noqa: E402
 from bench.cathedral_direct import part, prepare, texel_geometry  # noqa: E402
 from bench.competitors import BLOCK, block_means, errors  # noqa: E402
 from bench.run import interior_texels  # noqa: E402
@@ -46,6 +48,15 @@ OFF = 0.20
 """A block is off when its mean differs from the reference's by more than this (the issue's bound)."""
 LIT = 0.05
 """Blocks whose reference mean is below this fraction of the map's mean are not judged (noise)."""
+
+
+def geometry_digest(detail: float) -> str:
+    """8 hex digits of the cathedral's mesh at ``detail``: a cached reference is for that mesh only."""
+    mesh = cathedral(detail)
+    h = hashlib.sha1(np.ascontiguousarray(mesh.positions).tobytes())
+    h.update(mesh.face_vertices.tobytes())
+    h.update(mesh.face_counts.tobytes())
+    return h.hexdigest()[:8]
 
 
 def bake_final(folder: Path, resolution: int, threads: int):
@@ -79,9 +90,9 @@ def main(argv=None):
     P = result.indirect[ob.name]
     H, W = P.shape[:2]
     writeback.set_shading([ob], baked=False)  # the PDIC copies emit the light map: hide them
-    cached = folder / f"reference_d{args.detail}_{W}x{H}_{args.spp}spp_{args.bounces}b.npz"
+    cached = folder / f"reference_d{args.detail}_{geometry_digest(args.detail)}_{W}x{H}_{args.spp}spp_{args.bounces}b.npz"
     pair, seconds = [], 0.0
-    if cached.exists():  # the unwrap is deterministic: the same UVs, the same texels
+    if cached.exists():  # the unwrap is deterministic: the same mesh, the same UVs, the same texels
         with np.load(cached) as f:
             pair, coverage, seconds = [f["C1"], f["C2"]], f["coverage"], float(f["seconds"])
     else:

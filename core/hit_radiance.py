@@ -152,10 +152,11 @@ def cell_albedo(scene, L: np.ndarray, offset: np.ndarray, triangle: np.ndarray, 
 
 def build_hit_grid(scene, caster, indirect_at, R_min: float, hits: int, seed: int, stream, executor, progress,
                    direct_from: HitGrid | None = None) -> tuple[HitGrid, dict]:
-    """The grid over ``scene``'s triangles and counters (cells, shadow rays, fallback rays).
+    """The grid over ``scene``'s triangles and counters (cells, shadow rays, the lookups' rays).
 
     indirect_at : callable (q (m, 3), n (m, 3), known (2, m) or None) -> (E_indirect on the side n faces
-        (m, 3), on the other (m, 3), rays, fallback picks (2, m)): what a hit would read there, reusing
+        (m, 3), on the other (m, 3), rays cast (the records' visibility test, the fallback), fallback
+        picks (2, m)): what a hit would read there, reusing
         an earlier grid's fallback picks ``known`` (:func:`~core.real_rays.indirect_on_both_sides`).
     hits : about how many hits will read the grid; it gets at most HIT_GRID_CELLS_PER_HIT of that
         in cells (both sides counted), so it costs a fraction of the hits it replaces.
@@ -171,7 +172,7 @@ def build_hit_grid(scene, caster, indirect_at, R_min: float, hits: int, seed: in
     E = np.zeros((2, len(q), 3), np.float32)
     reuse = direct_from is not None and np.array_equal(direct_from.side, L)
     E_direct = direct_from.E_direct if reuse else np.zeros((2, len(q), 3), np.float32)
-    counters = {"hit_grid_cells": len(q), "hit_grid_shadow_rays": 0, "hit_grid_fallback_rays": 0}
+    counters = {"hit_grid_cells": len(q), "hit_grid_shadow_rays": 0, "hit_grid_lookup_rays": 0}
     albedo = direct_from.albedo if reuse else cell_albedo(scene, L, offset, triangle, executor, progress)
     for side, n in enumerate((normal, -normal)):
         if not reuse:
@@ -186,6 +187,6 @@ def build_hit_grid(scene, caster, indirect_at, R_min: float, hits: int, seed: in
     for side in (0, 1):
         E_indirect = np.concatenate([part[side] for part in parts]) if parts else np.zeros((0, 3))
         E[side] = E_direct[side] + E_indirect
-    counters["hit_grid_fallback_rays"] += sum(part[2] for part in parts)
+    counters["hit_grid_lookup_rays"] += sum(part[2] for part in parts)
     fallback = np.concatenate([part[3] for part in parts], axis=1).astype(np.int32) if parts else None
     return HitGrid(L, offset, E, E_direct, q, albedo, fallback), counters

@@ -176,9 +176,7 @@ def gap_irradiance(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng
         _, n_y = side_met(caster.face_normals, tri, d[hit])
         y = origin[hit] + d[hit] * hits.t[hit, None]
         view = caster.serial()  # counts the records' visibility rays and the fallback's on its own
-        seen = copy.copy(sources.lookup)  # shares the records' arrays and zone grid
-        seen.caster = view
-        E_y, _ = indirect_at_hits(view, replace(sources, lookup=seen), y, n_y)
+        E_y, _ = indirect_at_hits(view, seeing(sources, view), y, n_y)
         rays += view.rays_cast
         direct_y = direct_irradiance(scene, caster, y, n_y, n_y, 1, rng)
         rays += sum(direct_y.shadow_rays.values())
@@ -186,12 +184,25 @@ def gap_irradiance(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng
     return E, rays
 
 
+def seeing(sources, view):
+    """``sources`` whose record lookup keeps only records that see the point (deviation:
+    record-visibility, as a texel's lookup does; ``sources`` as they are with it off), casting on
+    ``view`` (a :meth:`RayCaster.serial` view of the caller's own, which counts the rays). The copy
+    shares the records' arrays and zone grid."""
+    if not sources.deviations.record_visibility:
+        return sources
+    lookup = copy.copy(sources.lookup)
+    lookup.caster = view
+    return replace(sources, lookup=lookup)
+
+
 def _irradiance_at_hits(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng: np.random.Generator
                         ) -> tuple[np.ndarray, int]:
     """(E_direct + E_indirect (h, 3), rays spent) at hits q facing n_hit (h, 3), each on its own."""
-    E_indirect, hole_rays = indirect_at_hits(caster, sources, q, n_hit)
+    view = caster.serial()  # counts the records' visibility rays and the fallback's on its own
+    E_indirect, _ = indirect_at_hits(view, seeing(sources, view), q, n_hit)
     direct = direct_irradiance(scene, caster, q, n_hit, n_hit, 1, rng)
-    return direct.E + E_indirect, sum(direct.shadow_rays.values()) + hole_rays
+    return direct.E + E_indirect, sum(direct.shadow_rays.values()) + view.rays_cast
 
 
 def indirect_at_hits(caster, sources, q: np.ndarray, n_hit: np.ndarray) -> tuple[np.ndarray, int]:

@@ -33,7 +33,7 @@ from .hit_radiance import HitGrid, build_hit_grid
 from .interpolation import CacheLookup
 from .irradiance_cache import CacheParameters, IrradianceCache, Zones, neighbour_clamp
 from .photons import PhotonLighting
-from .real_rays import RealHits, indirect_on_both_sides, shade_real, trace_real
+from .real_rays import RealHits, indirect_on_both_sides, seeing, shade_real, trace_real
 from .record_walls import open_walls, wall_distances
 from .settings import BakeSettings, Deviations
 from .validity import closed_backs, open_backs, overrule_by_photons
@@ -87,12 +87,18 @@ def gather_sources(density: PhotonDensity, lighting: PhotonLighting, records: Ir
         return sources, {}
     if progress is not None:
         progress.begin(("Pass 3" if use == 0 else "Hole records") + ": irradiance over the hit grid")
-    serial = caster.serial()
+
+    def indirect_at(q, n, known):
+        view = caster.serial()  # this chunk's rays: the records' visibility test and the fallback
+        # deviation: record-visibility: a cell on the back of a wall must not read the records a
+        # centimetre in front of it (the slot between a flipped wall's faces read the tracery's backs).
+        front, back, _, picks = indirect_on_both_sides(view, seeing(sources, view), q, n, known)
+        return front, back, view.rays_cast, picks
+
     hits = len(records) * settings.hemisphere_theta * settings.hemisphere_phi
-    grid, counters = build_hit_grid(scene, caster,
-                                    lambda q, n, known: indirect_on_both_sides(serial, sources, q, n, known),
-                                    params.R_min, hits, settings.seed, [STREAM_HIT_GRID, use], executor, progress,
-                                    direct_from)
+    grid, counters = build_hit_grid(scene, caster, indirect_at, params.R_min, hits, settings.seed,
+                                    [STREAM_HIT_GRID, use], executor, progress, direct_from)
+    caster.rays_cast += counters["hit_grid_lookup_rays"]
     return replace(sources, hit_grid=grid), counters
 
 

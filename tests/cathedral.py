@@ -209,9 +209,20 @@ def _apse(b, x, radius, height, detail):
                                   height + radius * np.sin(0.5 * math.pi * v)], -1), seg, max(4, int(16 * detail)))
 
 
-def _stairs(b, x0, width, steps):
+def _stairs(b, x0, width, steps, run=0.3, rise=0.18):
+    """A solid flight standing on the floor: treads, risers, two flanks and a back, no face on another.
+
+    Not a pile of boxes: their flanks would lie in one plane, overlapping, where no renderer's answer
+    is right (Cycles' shadow rays hit the coplanar twin and black the flank out)."""
+    y0, y1 = -width / 2, width / 2
     for k in range(steps):
-        b.box((x0 + 0.3 * k, -width / 2, 0.0), (x0 + 0.3 * (k + 1) + 0.3 * (steps - k - 1), width / 2, 0.18 * (k + 1)))
+        xa, xb, low, h = x0 + run * k, x0 + run * (k + 1), rise * k, rise * (k + 1)
+        b.add([(xa, y0, h), (xb, y0, h), (xb, y1, h), (xa, y1, h)], [(0, 1, 2, 3)])  # tread, up
+        b.add([(xa, y1, low), (xa, y0, low), (xa, y0, h), (xa, y1, h)], [(0, 1, 2, 3)])  # riser, -x
+        b.add([(xa, y0, 0.0), (xb, y0, 0.0), (xb, y0, h), (xa, y0, h)], [(0, 1, 2, 3)])  # flank, -y
+        b.add([(xb, y1, 0.0), (xa, y1, 0.0), (xa, y1, h), (xb, y1, h)], [(0, 1, 2, 3)])  # flank, +y
+    x1, top = x0 + run * steps, rise * steps
+    b.add([(x1, y0, 0.0), (x1, y1, 0.0), (x1, y1, top), (x1, y0, top)], [(0, 1, 2, 3)])  # back, +x
 
 
 DEFAULT_DETAIL = 0.8
