@@ -62,14 +62,18 @@ def wall_clearance(wall: np.ndarray) -> np.ndarray:
     return nearest * (1.0 - WALL_MARGIN) * np.sin(2 * np.pi / WALL_RAYS)
 
 
-def beyond_wall(wall: np.ndarray, delta: np.ndarray, n_k: np.ndarray) -> np.ndarray:
+def beyond_wall(wall: np.ndarray, delta: np.ndarray, n_k: np.ndarray, reach: np.ndarray | None = None) -> np.ndarray:
     """(m,) bool: offsets ``delta`` from records (normals n_k, sector walls ``wall`` (m, S)) lie past a wall.
 
     The record sees, in its tangent plane, the star polygon through its sector rays' hits:
     a point between two neighbouring rays is past the wall if it lies beyond the segment
-    joining their hits (a ray that hit nothing stands in with a far point). The segment
-    follows a straight wall whatever its angle to the rays, so directions parallel to a
-    wall keep their reach, and nothing behind a wall slips between two rays.
+    joining their hits. The segment follows a straight wall whatever its angle to the rays, so
+    directions parallel to a wall keep their reach, and nothing behind a wall slips between two
+    rays that both met it. A ray that met nothing stands in with a point at ``reach`` (m,), the
+    distance the rays looked (:func:`wall_distances`): no wall is nearer along it, and a straight
+    wall through its neighbour's hit crosses it no nearer. Without ``reach`` it stands in with a far
+    point (the wall bends away): a wall met by one ray only then leaves a wedge between its line
+    and that far segment, through which a floor running on under the wall reaches its far side.
     """
     t1, t2 = orthonormal_basis(n_k)
     x = np.einsum("ij,ij->i", delta, t1)
@@ -80,7 +84,10 @@ def beyond_wall(wall: np.ndarray, delta: np.ndarray, n_k: np.ndarray) -> np.ndar
     rows = np.arange(len(delta))
     t_i, t_j = wall[rows, i].astype(np.float64), wall[rows, j].astype(np.float64)
     finite = np.isfinite(t_i) | np.isfinite(t_j)
-    far = FAR_WALL * np.where(np.isfinite(t_i), t_i, np.where(np.isfinite(t_j), t_j, 1.0))
+    if reach is None:
+        far = FAR_WALL * np.where(np.isfinite(t_i), t_i, np.where(np.isfinite(t_j), t_j, 1.0))
+    else:
+        far = np.asarray(reach, np.float64)
     # A wall at distance 0 would make its segment a point through the record, on whose line every
     # point lies: nothing would be past it while the kernel mass it leaves is ~0. A tiny positive
     # distance keeps the polygon a polygon.
