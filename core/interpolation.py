@@ -81,10 +81,16 @@ class CacheLookup:
             d2 = np.einsum("ij,ij->i", delta, delta)
             own_zone = self.a * c.R[rec]  # the record's zone before any gap-fill margin
             near_wall = ok & (d2 >= self.clearance[rec] ** 2)
-            # The walls were found within the zone a R_k: a sector ray that met none says no wall is
-            # nearer along it (not that the wall bends away), so a floor running on under a wall
-            # does not carry the record's light past the wall's foot between two of its rays.
-            ok[near_wall] = ~beyond_wall(c.wall[rec[near_wall]], delta[near_wall], n_k[near_wall], own_zone[near_wall])
+            # deviation: wall-sectors: a point past a wall met by one sector ray only, in the wedge
+            # between the polygons whose missed rays stand at the zone's radius and far away, counts
+            # if the record sees it (a floor running on under a wall, not the floor beside a column).
+            walled = np.flatnonzero(near_wall)
+            inside = ~beyond_wall(c.wall[rec[walled]], delta[walled], n_k[walled], own_zone[walled])
+            band = ~inside & ~beyond_wall(c.wall[rec[walled]], delta[walled], n_k[walled])
+            if self.caster is not None and band.any():
+                b = walled[band]
+                inside[band] = self.caster.sides_visible(p_r[b], n_r[b], p_k[b], n_k[b])
+            ok[walled] = inside
             if self.caster is not None:  # a surface between point and record hides it (a closed box's inside)
                 ok[ok] = ~self.caster.hidden_off_plane(p_r[ok], n_r[ok], p_k[ok], n_k[ok])
                 # ... and one behind it past the plane's curvature (a step down: see RECORD_STEP_BEHIND).

@@ -69,11 +69,12 @@ def beyond_wall(wall: np.ndarray, delta: np.ndarray, n_k: np.ndarray, reach: np.
     a point between two neighbouring rays is past the wall if it lies beyond the segment
     joining their hits. The segment follows a straight wall whatever its angle to the rays, so
     directions parallel to a wall keep their reach, and nothing behind a wall slips between two
-    rays that both met it. A ray that met nothing stands in with a point at ``reach`` (m,), the
-    distance the rays looked (:func:`wall_distances`): no wall is nearer along it, and a straight
-    wall through its neighbour's hit crosses it no nearer. Without ``reach`` it stands in with a far
-    point (the wall bends away): a wall met by one ray only then leaves a wedge between its line
-    and that far segment, through which a floor running on under the wall reaches its far side.
+    rays that both met it. A ray that met nothing stands in with a far point (the wall bends
+    away), or with ``reach`` (m,), at that distance, how far the rays looked (:func:`wall_distances`):
+    a straight wall through its neighbour's hit crosses it no nearer. The far point leaves a wedge
+    between a wall met by one ray only and its far segment, through which a floor running on under
+    the wall reaches its far side; the reach point leaves out the open floor beside a column too.
+    Equation 3 asks both and casts a ray in between (:class:`core.interpolation.CacheLookup`).
     """
     t1, t2 = orthonormal_basis(n_k)
     x = np.einsum("ij,ij->i", delta, t1)

@@ -18,8 +18,8 @@ hence 400^2 asked for. Before session 21 counted faces lit from behind as open s
 in gaps (docs/DEVIATIONS.md photon-evidence, gap-gathering) 1.033, 3.1 % and 11.8 %, the dark
 blocks 4-8-texel pieces of small surfaces (column-base tops, capital undersides, tracery) that no
 like-facing photon reached; in session 12, with photon evidence off, 0.877, 18.2 % and 38.0 %.
-bench/cathedral_indirect.py runs the 512^2, 1,024-spp version at detail 0.3 (14.4 % per texel,
-mean 1.021, 5.4 % of blocks off by more than 20 %).
+bench/cathedral_indirect.py runs the 512^2, 1,024-spp version at detail 0.3 (14.3 % per texel,
+mean 1.020, 5.3 % of blocks off by more than 20 %).
 """
 from __future__ import annotations
 

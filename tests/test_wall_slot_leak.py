@@ -87,10 +87,10 @@ def test_the_slot_inside_a_wall_gets_no_light():
 
 
 def test_a_floor_running_on_under_the_wall_carries_no_light_past_its_foot():
-    """The room's floor records stop at the wall's foot: a sector ray that met the wall and its
-    neighbour that met nothing within the zone bound the zone at the zone's reach, not at a far
-    point (before: the slot's floor E/pi up to 1.92 on 217 of its 256 texels, and the slot's hole
-    records spread that to its walls)."""
+    """The room's floor records stop at the wall's foot: past a wall met by one sector ray only, a
+    point between the polygons whose missed rays stand at the zone's radius and far away counts only
+    if the record sees it (before: the slot's floor E/pi up to 1.92 on 217 of its 256 texels, and
+    the slot's hole records spread that to its walls)."""
     result = _bake(inset=False)
     for name in ("Wall", "Outer", "SlotFloor"):
         assert float(result.lightmaps[name][..., :3].max()) == 0.0, name
