@@ -22,6 +22,7 @@ import argparse
 import hashlib
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -126,14 +127,20 @@ def main(argv=None):
     off = judged & (rel > OFF)
     print(f"8x8 blocks judged {int(judged.sum()):,} of {int(blocks.sum()):,}; off by > {OFF:.0%}: {int(off.sum())} "
           f"({off.sum() / max(judged.sum(), 1):.2%}); worst {rel.max():.1%}")
+    count = baked.reshape(H // BLOCK, BLOCK, W // BLOCK, BLOCK).sum(axis=(1, 3))
+    full = judged & (count >= BLOCK * BLOCK // 2)
+    print(f"  of the {int(full.sum()):,} judged blocks with >= {BLOCK * BLOCK // 2} texels {int((off & full).sum())} "
+          f"are off; of the {int((judged & (count == BLOCK * BLOCK)).sum()):,} full ones "
+          f"{int((off & (count == BLOCK * BLOCK)).sum())}")
     order = np.argsort(rel, axis=None)[::-1][:args.worst]
-    by, bx = np.unravel_index(order, rel.shape)
-    rows, cols = by * BLOCK + BLOCK // 2, bx * BLOCK + BLOCK // 2
-    pos, nrm, _, _ = texel_geometry(ob, rows, cols, W, H)
-    for y, x, p, n in zip(by, bx, pos, nrm):
-        where = part(p, n) if np.isfinite(p).all() else "block centre on no triangle"
-        print(f"  block ({y}, {x}): PDIC {lp[y, x]:.4g}, Cycles {lc[y, x]:.4g} ({lp[y, x] / lc[y, x] - 1:+.1%}), {where}, "
-              f"p {np.round(p, 2).tolist()}")
+    for y, x in zip(*np.unravel_index(order, rel.shape)):
+        # The parts of the block's own texels: a chart fragment's block centre is often on no triangle.
+        rows, cols = np.nonzero(baked[y * BLOCK:(y + 1) * BLOCK, x * BLOCK:(x + 1) * BLOCK])
+        pos, nrm, _, _ = texel_geometry(ob, rows + y * BLOCK, cols + x * BLOCK, W, H)
+        parts = Counter(part(p, n) for p, n in zip(pos, nrm) if np.isfinite(p).all())
+        where = ", ".join(f"{name} {k}" for name, k in parts.most_common(2)) or "no texel on a triangle"
+        print(f"  block ({y}, {x}), {int(count[y, x])} texels: PDIC {lp[y, x]:.4g}, Cycles {lc[y, x]:.4g} "
+              f"({lp[y, x] / lc[y, x] - 1:+.1%}); {where}")
 
 
 if __name__ == "__main__":

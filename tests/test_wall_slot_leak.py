@@ -6,7 +6,9 @@ the slot between them (a flipped wall): the faces bake the slot's side, which no
 on the bars' backs face the wall, the way the slot side of the wall faces. Pass 3's hit-grid cells
 on the slot side read those records without the record-visibility test a texel's lookup makes,
 through the wall: 3,032 texels of the wall's outside face got light (up to the map's mean), and
-here the slot's far face got E/pi 1.12 on every texel (0 with the test).
+here the slot's far face got E/pi 1.12 on every texel (0 with the test). With the slot's floor
+continuing the room's (a floor running on under a wall), the floor's records also reached past the
+wall's foot through their wall polygon's wedge (docs/DEVIATIONS.md wall-sectors).
 """
 from __future__ import annotations
 
