@@ -169,8 +169,19 @@ def test_a_worker_dying_while_an_array_is_shipped_neither_fails_nor_hangs_the_ca
         threading.Timer(delay, os.kill, (victim, signal.SIGKILL)).start()
         assert cluster.map_chunks(chunk_sum, chunks) == [1_000.0 * (round_ + 1)] * 4
         time.sleep(0.7)  # the killer has fired
-        # The nanny's new worker, before the next round: a worker imports bpy, which took over 60 s
-        # once while a 2048^2 bake shared the machine (a set-up wait, not what the test checks).
+        _two_workers_again(client)
+
+
+def _two_workers_again(client):
+    """Wait for the nanny's new worker before the next round (a set-up wait, not what the test checks:
+    a worker imports bpy, which took over 60 s once while a 2048^2 bake shared the machine). A nanny
+    sometimes closes with its killed worker instead of restarting it (dask/distributed#7312; twice
+    in session 22's CI on Python 3.13, the cluster left with one worker for the 240 s wait): then
+    the cluster is scaled back to two."""
+    try:
+        client.wait_for_workers(2, timeout=90)
+    except TimeoutError:  # distributed's WorkerStartTimeoutError is one
+        client.cluster.scale(2)
         client.wait_for_workers(2, timeout=240)
 
 
