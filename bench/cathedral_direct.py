@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/cathedral_direct.py [--detail 0.3] [--res 512] [--spp 16] [--examples 3]
 
-One mesh object (the generated cathedral, no materials), two hard point lights in
+One mesh object (the generated cathedral, one Diffuse BSDF material), two hard point lights in
 the nave, black world. PDIC bakes direct light only through the add-on's
 ``BakeJob``; Cycles bakes Diffuse Direct (no Color, adaptive sampling off) into the
 same ``PDIC_Lightmap`` UVs at the resolution PDIC chose. Compared on texels Cycles

@@ -3,7 +3,8 @@
     .venv/bin/python bench/cathedral_indirect.py [--detail 0.3] [--res 512] [--spp 1024] [--bounces 32]
 
 The cathedral of bench/cathedral_direct.py (one mesh object, two point lights in the nave,
-black world, no materials: albedo 0.8). PDIC bakes Final at its defaults through the add-on's
+black world, one Diffuse BSDF material of albedo 0.8: not Blender's default surface, whose
+specular layer takes 3 % of the indirect light, tests/test_cathedral_direct_vs_cycles.py). PDIC bakes Final at its defaults through the add-on's
 ``BakeJob``; Cycles bakes Diffuse Indirect (no Color, adaptive sampling off, ``--bounces``
 diffuse bounces, sample clamping off) into the same ``PDIC_Lightmap`` UVs twice, with seeds 1
 and 2: their mean is the reference and their difference its noise, which is subtracted
@@ -36,10 +37,10 @@ pdic_bootstrap.load()
 import bpy  # noqa: E402
 
 import cycles_reference as cr  # noqa: E402
-from cathedral import cathedral  # noqa: E402
 from bench.cathedral_direct import part, prepare, texel_geometry  # noqa: E402
 from bench.competitors import BLOCK, block_means, errors  # noqa: E402
 from bench.run import interior_texels  # noqa: E402
+from test_cathedral_direct_vs_cycles import ALBEDO  # noqa: E402
 from pdic.pdic_addon import job as job_module  # noqa: E402
 from pdic.pdic_addon import writeback  # noqa: E402
 from pdic.pdic_addon.properties import to_settings  # noqa: E402
@@ -51,12 +52,17 @@ LIT = 0.05
 """Blocks whose reference mean is below this fraction of the map's mean are not judged (noise)."""
 
 
-def geometry_digest(detail: float) -> str:
-    """8 hex digits of the cathedral's mesh at ``detail``: a cached reference is for that mesh only."""
-    mesh = cathedral(detail)
-    h = hashlib.sha1(np.ascontiguousarray(mesh.positions).tobytes())
-    h.update(mesh.face_vertices.tobytes())
-    h.update(mesh.face_counts.tobytes())
+def scene_digest(ob) -> str:
+    """8 hex digits of the cathedral object as Cycles sees it (its mesh and its material's albedo):
+    a cached reference is for that object only."""
+    mesh = ob.data
+    co = np.empty(len(mesh.vertices) * 3, np.float64)
+    mesh.vertices.foreach_get("co", co)
+    loops = np.empty(len(mesh.loops), np.int64)
+    mesh.loops.foreach_get("vertex_index", loops)
+    h = hashlib.sha1(co.tobytes())
+    h.update(loops.tobytes())
+    h.update(repr([m.name for m in mesh.materials] + [ALBEDO]).encode())
     return h.hexdigest()[:8]
 
 
@@ -91,7 +97,7 @@ def main(argv=None):
     P = result.indirect[ob.name]
     H, W = P.shape[:2]
     writeback.set_shading([ob], baked=False)  # the PDIC copies emit the light map: hide them
-    cached = folder / f"reference_d{args.detail}_{geometry_digest(args.detail)}_{W}x{H}_{args.spp}spp_{args.bounces}b.npz"
+    cached = folder / f"reference_d{args.detail}_{scene_digest(ob)}_{W}x{H}_{args.spp}spp_{args.bounces}b.npz"
     pair, seconds = [], 0.0
     if cached.exists():  # the unwrap is deterministic: the same mesh, the same UVs, the same texels
         with np.load(cached) as f:

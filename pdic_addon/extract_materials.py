@@ -35,7 +35,8 @@ from ..core.scene import Materials, SceneError, Texture
 USE_NODES_FLAG = bpy.app.version < (5, 0, 0)
 
 DEFAULT_BASE_COLOR = (0.8, 0.8, 0.8)
-"""Blender's default surface: diffuse grey 0.8, no emission."""
+"""Blender's default surface, base colour 0.8, no emission. Cycles shades it as a Principled BSDF,
+whose specular layer is not modelled here (README, Known limitations)."""
 
 # Colour spaces whose pixel values already are linear (or are data): passed through.
 _LINEAR_COLORSPACES = {"Non-Color", "Linear", "Linear Rec.709", "Linear CIE-XYZ E", "Raw", "Generic Data"}
