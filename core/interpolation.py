@@ -15,7 +15,7 @@ import numpy as np
 from .constants import RECORD_STEP_BEHIND
 from .executor import TEXEL_CHUNK, slices
 from .irradiance_cache import IrradianceCache
-from .record_walls import beyond_wall, wall_clearance
+from .record_walls import beyond_wall_and_reach, wall_clearance
 from .ward import accepted, record_estimate, ward_weight
 from .zone_grid import ZoneGrid
 
@@ -85,8 +85,9 @@ class CacheLookup:
             # between the polygons whose missed rays stand at the zone's radius and far away, counts
             # if the record sees it (a floor running on under a wall, not the floor beside a column).
             walled = np.flatnonzero(near_wall)
-            inside = ~beyond_wall(c.wall[rec[walled]], delta[walled], n_k[walled], own_zone[walled])
-            band = ~inside & ~beyond_wall(c.wall[rec[walled]], delta[walled], n_k[walled])
+            past_reach, past_far = beyond_wall_and_reach(c.wall[rec[walled]], delta[walled], n_k[walled],
+                                                         own_zone[walled])
+            inside, band = ~past_reach, past_reach & ~past_far
             if self.caster is not None and band.any():
                 b = walled[band]
                 inside[band] = self.caster.sides_visible(p_r[b], n_r[b], p_k[b], n_k[b])

@@ -74,34 +74,55 @@ def beyond_wall(wall: np.ndarray, delta: np.ndarray, n_k: np.ndarray, reach: np.
     a straight wall through its neighbour's hit crosses it no nearer. The far point leaves a wedge
     between a wall met by one ray only and its far segment, through which a floor running on under
     the wall reaches its far side; the reach point leaves out the open floor beside a column too.
-    Equation 3 asks both and casts a ray in between (:class:`core.interpolation.CacheLookup`).
+    Equation 3 asks both (:func:`beyond_wall_and_reach`) and casts a ray in between
+    (:class:`core.interpolation.CacheLookup`).
     """
-    t1, t2 = orthonormal_basis(n_k)
-    x = np.einsum("ij,ij->i", delta, t1)
-    y = np.einsum("ij,ij->i", delta, t2)
-    turn = np.mod((np.arctan2(y, x) - SECTOR_OFFSET) / (2 * np.pi), 1.0) * WALL_RAYS - 0.5
-    i = np.floor(turn).astype(np.int64) % WALL_RAYS  # the ray just before the point's direction
-    j = (i + 1) % WALL_RAYS
-    rows = np.arange(len(delta))
-    t_i, t_j = wall[rows, i].astype(np.float64), wall[rows, j].astype(np.float64)
-    finite = np.isfinite(t_i) | np.isfinite(t_j)
-    if reach is None:
-        far = FAR_WALL * np.where(np.isfinite(t_i), t_i, np.where(np.isfinite(t_j), t_j, 1.0))
-    else:
-        far = np.asarray(reach, np.float64)
-    # A wall at distance 0 would make its segment a point through the record, on whose line every
-    # point lies: nothing would be past it while the kernel mass it leaves is ~0. A tiny positive
-    # distance keeps the polygon a polygon.
-    t_i = np.maximum(np.where(np.isfinite(t_i), t_i, far) * (1.0 - WALL_MARGIN), TINY_WALL)
-    t_j = np.maximum(np.where(np.isfinite(t_j), t_j, far) * (1.0 - WALL_MARGIN), TINY_WALL)
-    a_i, a_j = _ray_angle(i), _ray_angle(j)
-    hx_i, hy_i = t_i * np.cos(a_i), t_i * np.sin(a_i)
-    hx_j, hy_j = t_j * np.cos(a_j), t_j * np.sin(a_j)
-    ex, ey = hx_j - hx_i, hy_j - hy_i
-    # The origin and the point on opposite sides of the segment's line: the point is past the wall.
-    side_point = ex * (y - hy_i) - ey * (x - hx_i)
-    side_origin = ex * (0.0 - hy_i) - ey * (0.0 - hx_i)
-    return finite & (side_point * side_origin < 0)
+    sector = _Sector(wall, delta, n_k)
+    return sector.beyond(sector.far() if reach is None else np.asarray(reach, np.float64))
+
+
+def beyond_wall_and_reach(wall: np.ndarray, delta: np.ndarray, n_k: np.ndarray, reach: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """(:func:`beyond_wall` with ``reach``, :func:`beyond_wall` without), each (m,) bool, from one
+    sector lookup."""
+    sector = _Sector(wall, delta, n_k)
+    return sector.beyond(np.asarray(reach, np.float64)), sector.beyond(sector.far())
+
+
+class _Sector:
+    """The two sector rays around each offset (m,): the point in the record's tangent frame and the
+    rays' hit distances (inf: the ray met nothing)."""
+
+    def __init__(self, wall: np.ndarray, delta: np.ndarray, n_k: np.ndarray):
+        t1, t2 = orthonormal_basis(n_k)
+        self.x = np.einsum("ij,ij->i", delta, t1)
+        self.y = np.einsum("ij,ij->i", delta, t2)
+        turn = np.mod((np.arctan2(self.y, self.x) - SECTOR_OFFSET) / (2 * np.pi), 1.0) * WALL_RAYS - 0.5
+        self.i = np.floor(turn).astype(np.int64) % WALL_RAYS  # the ray just before the point's direction
+        self.j = (self.i + 1) % WALL_RAYS
+        rows = np.arange(len(delta))
+        self.t_i, self.t_j = wall[rows, self.i].astype(np.float64), wall[rows, self.j].astype(np.float64)
+        self.finite = np.isfinite(self.t_i) | np.isfinite(self.t_j)
+
+    def far(self) -> np.ndarray:
+        """(m,) the far stand-in for a ray that met nothing: FAR_WALL x its neighbour's hit."""
+        return FAR_WALL * np.where(np.isfinite(self.t_i), self.t_i, np.where(np.isfinite(self.t_j), self.t_j, 1.0))
+
+    def beyond(self, far: np.ndarray) -> np.ndarray:
+        """(m,) bool: past the segment between the two rays' hits, ``far`` (m,) standing in for a miss."""
+        # A wall at distance 0 would make its segment a point through the record, on whose line every
+        # point lies: nothing would be past it while the kernel mass it leaves is ~0. A tiny positive
+        # distance keeps the polygon a polygon.
+        t_i = np.maximum(np.where(np.isfinite(self.t_i), self.t_i, far) * (1.0 - WALL_MARGIN), TINY_WALL)
+        t_j = np.maximum(np.where(np.isfinite(self.t_j), self.t_j, far) * (1.0 - WALL_MARGIN), TINY_WALL)
+        a_i, a_j = _ray_angle(self.i), _ray_angle(self.j)
+        hx_i, hy_i = t_i * np.cos(a_i), t_i * np.sin(a_i)
+        hx_j, hy_j = t_j * np.cos(a_j), t_j * np.sin(a_j)
+        ex, ey = hx_j - hx_i, hy_j - hy_i
+        # The origin and the point on opposite sides of the segment's line: the point is past the wall.
+        side_point = ex * (self.y - hy_i) - ey * (self.x - hx_i)
+        side_origin = ex * (0.0 - hy_i) - ey * (0.0 - hx_i)
+        return self.finite & (side_point * side_origin < 0)
 
 
 def past_walls(wall: np.ndarray, delta: np.ndarray, n_k: np.ndarray) -> np.ndarray:
