@@ -18,7 +18,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .albedo import albedo as albedo_at
-from .constants import GAP_COS, HIT_GRID_NEAR
+from .constants import GAP_COS, GAP_WALK_BOUNCES, GAP_WALK_SURVIVAL, HIT_GRID_NEAR
 from .direct import direct_irradiance
 from .gather_cells import CellSums
 from .photon_fallback import NOT_ASKED, NearestPhotons, nearest_photon_seen, photon_irradiance
@@ -113,8 +113,9 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
     E_direct + E_indirect and the mean albedo from the cell (one occlusion ray); the rest are shaded
     as above, with their own albedo, and so are hits nearer to the record than HIT_GRID_NEAR times
     their cell centroid's distance from them (``distance`` (h,): each hit's from the record).
-    Of those near hits, the ones whose surface faces the record's (``n_record`` (h, 3), each hit's
-    record normal; deviation: gap-gathering) gather their indirect light with one ray of their own.
+    Hits whose surface faces the record's (``n_record`` (h, 3), each hit's record normal), near ones
+    and those within ``sources.gap_reach`` of the record, lie in a gap and gather their indirect light
+    by a walk of their own (deviation: gap-gathering, :func:`gap_irradiance`).
     """
     back, n_hit = side_met(caster.face_normals, triangle, direction)
     if sources.hit_grid is None:
@@ -127,13 +128,13 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
     E, centroid, rho = sources.hit_grid.lookup(triangle, barycentric, back)
     offset = q - centroid
     near = np.einsum("ij,ij->i", offset, offset) > (HIT_GRID_NEAR * distance) ** 2
-    far = np.flatnonzero(~near)
-    alone = near.copy()
-    alone[far] = ~caster.sides_visible(q[far], n_hit[far], centroid[far], n_hit[far])
     gap = np.zeros(len(q), bool)
     if sources.deviations.gap_gathering and n_record is not None:  # deviation: gap-gathering
-        gap = near & (np.einsum("ij,ij->i", n_hit, n_record) < -GAP_COS)
-        alone &= ~gap
+        # Not the grid, even where its cell is small: in a gap the cell's records spread the mouth's light.
+        gap = (near | (distance < sources.gap_reach)) & (np.einsum("ij,ij->i", n_hit, n_record) < -GAP_COS)
+    far = np.flatnonzero(~near & ~gap)
+    alone = near & ~gap
+    alone[far] = ~caster.sides_visible(q[far], n_hit[far], centroid[far], n_hit[far])
     own, in_gap = np.flatnonzero(alone), np.flatnonzero(gap)
     rays = len(far)
     if rho is None:
@@ -153,34 +154,65 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
 def gap_irradiance(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng: np.random.Generator
                    ) -> tuple[np.ndarray, int]:
     """(E_direct + E_indirect (h, 3), rays spent) at hits q facing n_hit (h, 3) that face the record
-    they were gathered for from close by: E_indirect from one cosine-weighted ray of their own, whose
-    hit y sends albedo x (E_direct + E_indirect at y, each its own) (deviation: gap-gathering).
+    they were gathered for from close by: E_indirect from a walk of their own (deviation: gap-gathering).
 
     Such a hit lies in a gap between the record's surface and its own (the back of window tracery
     2 cm before a wall, a frame, a pipe): the record's surface covers much of the hit's hemisphere,
     which the records around the gap, out on the open wall with zones tens of centimetres wide, do
-    not see: they lit the wall patch behind the cathedral's tracery at 2.2x a path tracer's. y's
-    records must see it, as a texel's do (deviation: record-visibility): y often lies on the gap's
-    far side, under a slab or a box whose inside records lie a centimetre away on the same side,
-    which the hit grid's cells, read without that test, let through.
+    not see: they lit the wall patch behind the cathedral's tracery at 2.2x a path tracer's. The walk
+    leaves the hit by a cosine-weighted ray; each vertex y adds its albedo-weighted direct light
+    (one shadow ray per light), and while y faces the vertex it came from (GAP_COS) from within
+    ``sources.gap_reach`` (a R_min: the narrowest zone, the finest the records resolve) the walk
+    bounces on from y, up to GAP_WALK_BOUNCES vertices: records spread a gap's light over their
+    zones, so a record read inside a gap 1 cm deep in a 30 cm plate's shadow lit it from the plate's
+    edges. Where the walk leaves the gap (or ends), y's records give its indirect light: they must
+    see y, as a texel's do (deviation: record-visibility): y often lies on the gap's far side, under
+    a slab or a box whose inside records lie a centimetre away on the same side, which the hit
+    grid's cells, read without that test, let through.
     """
-    direct = direct_irradiance(scene, caster, q, n_hit, n_hit, 1, rng)
-    d = to_world(cosine_hemisphere(rng.random((len(q), 2)))[0], n_hit)
-    origin = caster.offset_origins(q, n_hit, d)
-    hits = caster.intersect(origin, d, unit=True)
-    E = direct.E.copy()
-    hit = np.flatnonzero(hits.hit)
-    rays = sum(direct.shadow_rays.values()) + len(q)
-    if len(hit):
+    rays = 0
+    rows, x, n_x = np.arange(len(q)), q, n_hit
+    beta = np.ones((len(q), 3))  # the walk's throughput: albedos over survival probabilities
+    vertices = []  # per bounce: (walk rows, y, n_y, beta at y, leaves the gap at y)
+    for bounce in range(GAP_WALK_BOUNCES):
+        d = to_world(cosine_hemisphere(rng.random((len(x), 2)))[0], n_x)
+        origin = caster.offset_origins(x, n_x, d)
+        hits = caster.intersect(origin, d, unit=True)
+        rays += len(x)
+        hit = np.flatnonzero(hits.hit)
+        if len(hit) == 0:
+            break
         tri, bary = hits.triangle[hit], hits.barycentric[hit]
         _, n_y = side_met(caster.face_normals, tri, d[hit])
         y = origin[hit] + d[hit] * hits.t[hit, None]
+        rho = albedo_at(scene, tri, bary).astype(np.float64)
+        beta_y = beta[hit] * rho  # pi x the radiance leaving y, per cosine pdf
+        inside = (hits.t[hit] < sources.gap_reach) & (np.einsum("ij,ij->i", n_y, n_x[hit]) < -GAP_COS)
+        inside &= bounce < GAP_WALK_BOUNCES - 1
+        vertices.append((rows[hit], y, n_y, beta_y, ~inside))
+        # Still in the gap: bounce on, or stop by Russian roulette on y's albedo (records read in a
+        # gap spread the light of its mouth over their zones, so the walk does not end on them).
+        walk = np.flatnonzero(inside)
+        survive = np.clip(rho[walk].max(axis=1), GAP_WALK_SURVIVAL, 1.0)
+        kept = rng.random(len(walk)) < survive
+        walk, survive = walk[kept], survive[kept]
+        rows, x, n_x, beta = rows[hit[walk]], y[walk], n_y[walk], beta_y[walk] / survive[:, None]
+        if len(rows) == 0:
+            break
+    # Each vertex's direct light, and the records' light where the walk left the gap, in one batch each.
+    rows, y, n_y, beta_y, leaves = (np.concatenate(v) for v in zip(*vertices)) if vertices else (
+        np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, bool))
+    p, n = np.concatenate([q, y]), np.concatenate([n_hit, n_y])
+    direct = direct_irradiance(scene, caster, p, n, n, 1, rng)
+    rays += sum(direct.shadow_rays.values())
+    E = direct.E[:len(q)].copy()
+    np.add.at(E, rows, beta_y * direct.E[len(q):])
+    out = np.flatnonzero(leaves)
+    if len(out):
         view = caster.serial()  # counts the records' visibility rays and the fallback's on its own
-        E_y, _ = indirect_at_hits(view, seeing(sources, view), y, n_y)
+        E_y, _ = indirect_at_hits(view, seeing(sources, view), y[out], n_y[out])
         rays += view.rays_cast
-        direct_y = direct_irradiance(scene, caster, y, n_y, n_y, 1, rng)
-        rays += sum(direct_y.shadow_rays.values())
-        E[hit] += albedo_at(scene, tri, bary) * (E_y + direct_y.E)  # pi x the radiance leaving y, per cosine pdf
+        np.add.at(E, rows[out], beta_y[out] * E_y)
     return E, rays
 
 

@@ -56,6 +56,8 @@ class GatherSources:
     lookup : Equation 3 over the records gathered so far, without gradients: E_indirect at hits.
     radiance_out : (N, 3) float64 radiance leaving each photon (virtual rays), None without reuse.
     hit_grid : irradiance over every triangle that hits read instead (deviation: hit-grid), or None.
+    gap_reach : a R_min, scene units: a gap hit's walk bounces on while it stays this near (deviation:
+        gap-gathering, :func:`core.real_rays.gap_irradiance`).
     """
 
     density: PhotonDensity
@@ -64,6 +66,7 @@ class GatherSources:
     radiance_out: np.ndarray | None
     deviations: Deviations
     hit_grid: HitGrid | None = None
+    gap_reach: float = 0.0
 
     @property
     def nearest_photon_fallback(self) -> bool:
@@ -82,7 +85,7 @@ def gather_sources(density: PhotonDensity, lighting: PhotonLighting, records: Ir
     """
     radiance_out = lighting.radiance_out(density.photons.albedo) if settings.reuse_photon_paths else None
     sources = GatherSources(density, lighting, CacheLookup(records, params.a, use_gradients=False), radiance_out,
-                            settings.deviations)
+                            settings.deviations, gap_reach=params.a * params.R_min)
     if not settings.deviations.hit_grid or scene is None:
         return sources, {}
     if progress is not None:

@@ -3,10 +3,14 @@
 A plate 1 cm before the unit box's back wall, lit on its back by the lamp: its front, the bake
 target, faces the wall. Its records gather mostly from the wall patch right behind them, and the
 records around that patch, out on the open wall, do not see the plate covering it. A gathering
-hit that lies near its record and faces it gathers its own indirect light with one ray instead.
-At 4x4 texels over the 30 x 40 cm plate (R_min 17 cm, wider than the plate's light varies) the
-front's mean is 1.6x a path tracer's with the deviation and 2.1x without: what is left is pass 2's
-photon estimates inside the gap, which spread over R_min (the finer 16x16 bake: 1.5x either way).
+hit that faces its record from nearby gathers its own indirect light instead, by a walk that
+bounces between the plate and the wall until it leaves the gap (records inside the gap spread the
+light of its mouth, 10x the centre's, over their zones). At 4x4 texels over the 30 x 40 cm plate
+(R_min 17 cm, wider than the plate's light varies) the front's mean is 1.39x a path tracer's with
+the deviation and 2.06x without (one ray per gap hit and near hits only, before session 23: 1.6x);
+at 16x16 1.21x and 1.51x. The records on the plate match the path tracer at their own positions
+(the darkest, mid-plate: 0.12 against 0.12, 0.15 against 0.21 E/pi); what is left is the 4x4
+texels' interpolation of a light that falls tenfold from the plate's edges to its middle.
 """
 from __future__ import annotations
 
@@ -54,5 +58,5 @@ def test_hits_in_the_gap_gather_their_own_light_and_the_plate_darkens_toward_the
     assert counters["refine_gap_hits"] > 1000 and counters_off["refine_gap_hits"] == 0
     assert np.isfinite(on) and on > 0
     assert off / referee > 1.9  # the open wall's records lit the patch behind the plate
-    assert on / referee < 1.75
+    assert on / referee < 1.5  # 1.6 with one ray per gap hit
     assert on < 0.85 * off
