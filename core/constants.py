@@ -243,8 +243,10 @@ HIT_GRID_NEAR = 1.0
 """A gathering hit nearer to its record than this times its distance from its grid cell's centroid is
 shaded on its own (core/real_rays.py): the cell would stand for much of the record's hemisphere."""
 GAP_COS = 0.5
-"""A near gathering hit whose normal is within 60 degrees of facing its record's normal lies in a gap
-between the two surfaces and gathers its own indirect light (deviation: gap-gathering, core/real_rays.py)."""
+"""A gathering hit near its record (the near-hit rule, or within a R_min) whose normal is within 60 degrees
+of facing the record's lies in a gap between the two surfaces and gathers its own indirect light; a walk's
+vertex that faces the one before it so, within a R_min, is still in the gap (deviation: gap-gathering,
+core/real_rays.py)."""
 GAP_WALK_BOUNCES = 32
 """Most vertices of a gap hit's walk (deviation: gap-gathering, core/real_rays.py:gap_irradiance), which
 Russian roulette on the albedo ends sooner (at albedo 0.8, 5 on average); 1 reads records at the walk's
