@@ -5,13 +5,15 @@
 PDIC's light maps are judged against Cycles Diffuse Indirect bakes (no Color) of its own UVs
 (bench/competitors.py). This checks those bakes against what Cycles renders from a camera, on
 the texels a camera straight above sees: up-facing texels whose ray straight up leaves the scene
-(Sponza: its atrium floor). Every material's surface is mixed, for camera rays only, into a white
+(Sponza: its atrium floor and its roofs). Every material's surface is mixed, for camera rays only, into a white
 Diffuse BSDF (Light Path "Is Camera Ray"), so an orthographic camera's pixel holds E / pi at the
 point it sees while every bounce still meets the scene's own materials; the indirect part is a
 render at the bench's 32 diffuse bounces minus one at 0. Each texel takes the mean of the 2x2
-pixels nearest its centre (``--pixel`` metres wide: half a texel at Sponza's 16 texels/m). Prints the bake's and the camera's indirect
-light summed per channel over those texels, and their ratio; with ``--pdic`` (an npz of
-bench/competitors.py's PDIC maps) PDIC's too.
+pixels nearest its centre (``--pixel`` metres wide: half a texel at Sponza's 16 texels/m). Prints
+the bake's and the camera's indirect light summed per channel over those texels, and their ratio;
+with ``--pdic`` (an npz holding PDIC's indirect map under the object's name, e.g. a saved
+``BakeResult.indirect``) PDIC's too. The scene's extraction only translates it (its lights give the
+offset); the camera sees the topmost surface over each texel, which the upward ray proved is it.
 
 Measured (session 23, Sponza 16 texels/m, the defaults: a 16-spp bake pair, a 16-spp camera, 3 cm
 pixels; 64,761 texels, the atrium floor and the roofs; 105 s): relative R/G/B of the camera
