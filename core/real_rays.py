@@ -180,8 +180,6 @@ def gap_irradiance(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng
         hits = caster.intersect(origin, d, unit=True)
         rays += len(x)
         hit = np.flatnonzero(hits.hit)
-        if len(hit) == 0:
-            break
         tri, bary = hits.triangle[hit], hits.barycentric[hit]
         _, n_y = side_met(caster.face_normals, tri, d[hit])
         y = origin[hit] + d[hit] * hits.t[hit, None]
@@ -200,8 +198,7 @@ def gap_irradiance(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng
         if len(rows) == 0:
             break
     # Each vertex's direct light, and the records' light where the walk left the gap, in one batch each.
-    rows, y, n_y, beta_y, leaves = (np.concatenate(v) for v in zip(*vertices)) if vertices else (
-        np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, bool))
+    rows, y, n_y, beta_y, leaves = (np.concatenate(v) for v in zip(*vertices))
     p, n = np.concatenate([q, y]), np.concatenate([n_hit, n_y])
     direct = direct_irradiance(scene, caster, p, n, n, 1, rng)
     rays += sum(direct.shadow_rays.values())
@@ -209,9 +206,8 @@ def gap_irradiance(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng
     np.add.at(E, rows, beta_y * direct.E[len(q):])
     out = np.flatnonzero(leaves)
     if len(out):
-        view = caster.serial()  # counts the records' visibility rays and the fallback's on its own
-        E_y, _ = indirect_at_hits(view, seeing(sources, view), y[out], n_y[out])
-        rays += view.rays_cast
+        E_y, seen_rays = _indirect_seen(caster, sources, y[out], n_y[out])
+        rays += seen_rays
         np.add.at(E, rows[out], beta_y[out] * E_y)
     return E, rays
 
@@ -231,10 +227,17 @@ def seeing(sources, view):
 def _irradiance_at_hits(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng: np.random.Generator
                         ) -> tuple[np.ndarray, int]:
     """(E_direct + E_indirect (h, 3), rays spent) at hits q facing n_hit (h, 3), each on its own."""
-    view = caster.serial()  # counts the records' visibility rays and the fallback's on its own
-    E_indirect, _ = indirect_at_hits(view, seeing(sources, view), q, n_hit)
+    E_indirect, seen_rays = _indirect_seen(caster, sources, q, n_hit)
     direct = direct_irradiance(scene, caster, q, n_hit, n_hit, 1, rng)
-    return direct.E + E_indirect, sum(direct.shadow_rays.values()) + view.rays_cast
+    return direct.E + E_indirect, sum(direct.shadow_rays.values()) + seen_rays
+
+
+def _indirect_seen(caster, sources, q: np.ndarray, n_hit: np.ndarray) -> tuple[np.ndarray, int]:
+    """(:func:`indirect_at_hits` through :func:`seeing`, the rays that cast) at hits q facing n_hit (h, 3),
+    on a view of ``caster`` of its own that counts the records' visibility rays and the fallback's."""
+    view = caster.serial()
+    E_indirect, _ = indirect_at_hits(view, seeing(sources, view), q, n_hit)
+    return E_indirect, view.rays_cast
 
 
 def indirect_at_hits(caster, sources, q: np.ndarray, n_hit: np.ndarray) -> tuple[np.ndarray, int]:

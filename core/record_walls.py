@@ -62,7 +62,7 @@ def wall_clearance(wall: np.ndarray) -> np.ndarray:
     return nearest * (1.0 - WALL_MARGIN) * np.sin(2 * np.pi / WALL_RAYS)
 
 
-def beyond_wall(wall: np.ndarray, delta: np.ndarray, n_k: np.ndarray, reach: np.ndarray | None = None) -> np.ndarray:
+def beyond_wall(wall: np.ndarray, delta: np.ndarray, n_k: np.ndarray) -> np.ndarray:
     """(m,) bool: offsets ``delta`` from records (normals n_k, sector walls ``wall`` (m, S)) lie past a wall.
 
     The record sees, in its tangent plane, the star polygon through its sector rays' hits:
@@ -70,21 +70,23 @@ def beyond_wall(wall: np.ndarray, delta: np.ndarray, n_k: np.ndarray, reach: np.
     joining their hits. The segment follows a straight wall whatever its angle to the rays, so
     directions parallel to a wall keep their reach, and nothing behind a wall slips between two
     rays that both met it. A ray that met nothing stands in with a far point (the wall bends
-    away), or with ``reach`` (m,), at that distance, how far the rays looked (:func:`wall_distances`):
-    a straight wall through its neighbour's hit crosses it no nearer. The far point leaves a wedge
-    between a wall met by one ray only and its far segment, through which a floor running on under
-    the wall reaches its far side; the reach point leaves out the open floor beside a column too.
-    Equation 3 asks both (:func:`beyond_wall_and_reach`) and casts a ray in between
+    away). That leaves a wedge between a wall met by one ray only and its far segment, through
+    which a floor running on under the wall reaches its far side: Equation 3 asks
+    :func:`beyond_wall_and_reach` instead and casts a ray in the wedge
     (:class:`core.interpolation.CacheLookup`).
     """
     sector = _Sector(wall, delta, n_k)
-    return sector.beyond(sector.far() if reach is None else np.asarray(reach, np.float64))
+    return sector.beyond(sector.far())
 
 
 def beyond_wall_and_reach(wall: np.ndarray, delta: np.ndarray, n_k: np.ndarray, reach: np.ndarray
                           ) -> tuple[np.ndarray, np.ndarray]:
-    """(:func:`beyond_wall` with ``reach``, :func:`beyond_wall` without), each (m,) bool, from one
-    sector lookup."""
+    """((m,) bool past the polygon whose missed rays stand in at ``reach`` (m,), how far the rays
+    looked (:func:`wall_distances`), (m,) bool :func:`beyond_wall`), from one sector lookup.
+
+    A straight wall through a missed ray's neighbour's hit crosses it no nearer than ``reach``, so
+    the first polygon has no wedge; it also leaves out the open floor beside a column, which the
+    far point keeps."""
     sector = _Sector(wall, delta, n_k)
     return sector.beyond(np.asarray(reach, np.float64)), sector.beyond(sector.far())
 
