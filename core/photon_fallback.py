@@ -96,7 +96,13 @@ def _sees(caster, density: PhotonDensity, q: np.ndarray, n: np.ndarray, photon: 
     """(h,) bool: does each hit see its photon? Both ends lifted as in :mod:`core.zone_visibility`."""
     p_ph, n_ph = np.take(density.p, photon, axis=0), np.take(density.n, photon, axis=0).astype(np.float64)
     lift = VISIBILITY_LIFT * norms(p_ph - q)[:, None]
-    return caster.visible_between(q + lift * n, None, p_ph + lift * n_ph, None)
+    start, segment = q + lift * n, p_ph + lift * n_ph - (q + lift * n)
+    dist = norms(segment)
+    directions = np.divide(segment, dist[:, None], out=np.zeros_like(segment), where=dist[:, None] > 0)
+    # An epsilon past the lifted photon, not short of it: a photon on the edge where its face meets
+    # another (the inside of a closed box's bottom at its side) is lifted onto that other face, which
+    # must hide it from a floor point outside the box.
+    return (dist > 0) & ~caster.occluded(start, directions, dist + caster.epsilon, unit=True)
 
 
 def _nearest_seen(caster, density: PhotonDensity, q: np.ndarray, n: np.ndarray, near: np.ndarray,

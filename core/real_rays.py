@@ -18,7 +18,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .albedo import albedo as albedo_at
-from .constants import GAP_COS, GAP_WALK_BOUNCES, GAP_WALK_SURVIVAL, HIT_GRID_NEAR
+from .constants import CORNER_HEIGHT, GAP_COS, GAP_WALK_BOUNCES, GAP_WALK_SURVIVAL, HIT_GRID_NEAR
 from .direct import direct_irradiance
 from .gather_cells import CellSums
 from .photon_fallback import NOT_ASKED, NearestPhotons, nearest_photon_seen, photon_irradiance
@@ -115,7 +115,9 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
     their cell centroid's distance from them (``distance`` (h,): each hit's from the record).
     Hits whose surface faces the record's (``n_record`` (h, 3), each hit's record normal), near ones
     and those within ``sources.gap_reach`` of the record, lie in a gap and gather their indirect light
-    by a walk of their own (deviation: gap-gathering, :func:`gap_irradiance`).
+    by a walk of their own (deviation: gap-gathering, :func:`gap_irradiance`); so do hits within
+    ``sources.gap_reach`` and CORNER_HEIGHT of it above the record's tangent plane, at the foot of a
+    surface rising from the record's (deviation: corner-gathering).
     """
     back, n_hit = side_met(caster.face_normals, triangle, direction)
     if sources.hit_grid is None:
@@ -131,7 +133,13 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
     gap = np.zeros(len(q), bool)
     if sources.deviations.gap_gathering and n_record is not None:  # deviation: gap-gathering
         # Not the grid, even where its cell is small: in a gap the cell's records spread the mouth's light.
-        gap = (near | (distance < sources.gap_reach)) & (np.einsum("ij,ij->i", n_hit, n_record) < -GAP_COS)
+        within = distance < sources.gap_reach
+        gap = (near | within) & (np.einsum("ij,ij->i", n_hit, n_record) < -GAP_COS)
+        if sources.deviations.corner_gathering:  # deviation: corner-gathering, docs/DEVIATIONS.md
+            # At the foot of a wall rising from the record's surface the records' zones, wider than the
+            # corner, miss how the surface hides the wall's lower hemisphere.
+            height = distance * np.einsum("ij,ij->i", direction, n_record)
+            gap |= within & (height < CORNER_HEIGHT * sources.gap_reach)
     far = np.flatnonzero(~near & ~gap)
     alone = near & ~gap
     alone[far] = ~caster.sides_visible(q[far], n_hit[far], centroid[far], n_hit[far])
@@ -154,7 +162,8 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
 def gap_irradiance(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng: np.random.Generator
                    ) -> tuple[np.ndarray, int]:
     """(E_direct + E_indirect (h, 3), rays spent) at hits q facing n_hit (h, 3) that face the record
-    they were gathered for from close by: E_indirect from a walk of their own (deviation: gap-gathering).
+    they were gathered for from close by, or stand at a corner with its surface: E_indirect from a walk
+    of their own (deviations: gap-gathering, corner-gathering).
 
     Such a hit lies in a gap between the record's surface and its own (the back of window tracery
     2 cm before a wall, a frame, a pipe): the record's surface covers much of the hit's hemisphere,

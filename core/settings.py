@@ -63,7 +63,11 @@ class Deviations:
     cells on its triangle, computed once per cell, instead of a record lookup and shadow rays of its own."""
     gap_gathering: bool = True
     """Pass 3 (with hit_grid): a hit near its record whose surface faces the record's gathers its indirect
-    light with one ray of its own, read from the grid, instead of the records around it."""
+    light by a walk of its own (bouncing while it stays in the gap) instead of the records around it."""
+    corner_gathering: bool = True
+    """Pass 3 (with gap_gathering): a hit within a R_min of its record and near the record's tangent plane
+    (the foot of a wall rising from the record's surface) gathers by the gap walk too, facing the record
+    or not."""
     nearest_photon_fallback: bool = True
     """Pass 3: a gathering hit no record accepts takes the nearest visible photon's irradiance."""
     gradient_limiting: bool = True
