@@ -128,8 +128,7 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
     # wall (tracery, a pipe, a frame) gathers mostly from the wall patch right behind it, which a
     # cell's centroid in the open would light.
     E, centroid, rho = sources.hit_grid.lookup(triangle, barycentric, back)
-    offset = q - centroid
-    near = np.einsum("ij,ij->i", offset, offset) > (HIT_GRID_NEAR * distance) ** 2
+    near = _near_cell(q, centroid, distance)
     gap = np.zeros(len(q), bool)
     if sources.deviations.gap_gathering and n_record is not None:  # deviation: gap-gathering
         # Not the grid, even where its cell is small: in a gap the cell's records spread the mouth's light.
@@ -238,16 +237,22 @@ def _exits_on_grid(caster, sources, y: np.ndarray, n_y: np.ndarray, far: np.ndar
     vertex before, that see their grid cell's centroid and are not near it (HIT_GRID_NEAR x ``t`` (v,),
     their distance from that vertex), as :func:`radiance_at_hits` reads an ordinary gathering hit.
     Out of the gap such a vertex is one: a grid read and one ray instead of its shadow rays and the
-    records' lookup (Sponza 16/m: corner-gathering's +7-17 % CPU became +-1 %)."""
-    if sources.hit_grid is None:
-        return np.zeros(0, np.int64), np.zeros((0, 3)), 0
+    records' lookup (Sponza 16/m: corner-gathering's +7-17 % CPU became +-1 %). Walks run only with
+    the hit grid (:func:`radiance_at_hits`)."""
     candidate = np.flatnonzero(far)
     E, centroid, _ = sources.hit_grid.lookup(triangle[candidate], barycentric[candidate], back[candidate])
-    offset = y[candidate] - centroid
-    small = np.einsum("ij,ij->i", offset, offset) <= (HIT_GRID_NEAR * t[candidate]) ** 2
+    small = ~_near_cell(y[candidate], centroid, t[candidate])
     candidate, E, centroid = candidate[small], E[small], centroid[small]
     seen = caster.sides_visible(y[candidate], n_y[candidate], centroid, n_y[candidate])
     return candidate[seen], E[seen], len(candidate)
+
+
+def _near_cell(q: np.ndarray, centroid: np.ndarray, distance: np.ndarray) -> np.ndarray:
+    """(h,) bool: hits q (h, 3) nearer to where their ray left, ``distance`` (h,) away, than HIT_GRID_NEAR
+    times their distance from their grid cell's ``centroid`` (h, 3): the cell would stand for much of
+    that point's hemisphere, so the hit is shaded on its own."""
+    offset = q - centroid
+    return np.einsum("ij,ij->i", offset, offset) > (HIT_GRID_NEAR * distance) ** 2
 
 
 def seeing(sources, view):
