@@ -71,7 +71,7 @@ class Deviations:
     nearest_photon_fallback: bool = True
     """Pass 3: a gathering hit no record accepts takes the nearest visible photon's irradiance."""
     gradient_limiting: bool = True
-    """Pass 3: |grad_t| <= GRADIENT_LIMIT E_k / (a R_k) (a fifth of E_k across the zone) and |grad_r| <= E_k."""
+    """Pass 3: |grad_t| <= GRADIENT_LIMIT E_k / (a R_k) (0.3 x E_k across the zone) and |grad_r| <= E_k."""
     fine_zones: bool = True
     """Texels inside narrow zones are interpolated per sample, not once at their centroid."""
     hole_rounds: int = HOLE_ROUNDS

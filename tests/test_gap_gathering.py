@@ -6,8 +6,9 @@ records around that patch, out on the open wall, do not see the plate covering i
 hit that faces its record from nearby gathers its own indirect light instead, by a walk that
 bounces between the plate and the wall until it leaves the gap (records inside the gap spread the
 light of its mouth, 10x the centre's, over their zones). At 4x4 texels over the 30 x 40 cm plate
-(R_min 17 cm, wider than the plate's light varies) the front's mean is 1.39x a path tracer's with
-the deviation and 2.06x without (one ray per gap hit and near hits only, before session 23: 1.6x);
+(R_min 17 cm, wider than the plate's light varies) the front's mean is 1.45x a path tracer's with
+the deviation (1.36x with gradients limited to half of E_k across a zone, 1.50x to a fifth) and
+about 2.1x without (one ray per gap hit and near hits only, before session 23: 1.6x);
 at 16x16 1.21x and 1.51x. The records on the plate match the path tracer at their own positions
 (the darkest, mid-plate: 0.12 against 0.12, 0.15 against 0.21 E/pi); what is left is the 4x4
 texels' interpolation of a light that falls tenfold from the plate's edges to its middle.

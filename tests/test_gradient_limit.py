@@ -19,16 +19,16 @@ def test_gradients_past_the_limit_are_scaled_to_it_and_the_rest_kept():
     E = np.array([[2.0, 1.0, 0.0], [4.0, 4.0, 4.0]])
     zone = np.array([0.5, 2.0])
     grad_t = np.zeros((2, 3, 3))
-    grad_t[0, 0] = [3.0, 4.0, 0.0]  # |5| > 0.2 x 2 / 0.5 = 0.8: scaled to length 0.8, direction kept
-    grad_t[0, 1] = [0.0, 0.3, 0.0]  # below 0.2 x 1 / 0.5 = 0.4: kept
+    grad_t[0, 0] = [3.0, 4.0, 0.0]  # |5| > 0.3 x 2 / 0.5 = 1.2: scaled to length 1.2, direction kept
+    grad_t[0, 1] = [0.0, 0.3, 0.0]  # below 0.3 x 1 / 0.5 = 0.6: kept
     grad_t[0, 2] = [0.0, 0.0, 1e-3]  # a black channel allows no gradient
-    grad_t[1] = [0.35, 0.0, 0.0]  # below 0.2 x 4 / 2 = 0.4: kept
+    grad_t[1] = [0.35, 0.0, 0.0]  # below 0.3 x 4 / 2 = 0.6: kept
     grad_r = np.zeros((2, 3, 3))
     grad_r[0, 0] = [0.0, 6.0, 0.0]  # > E = 2: scaled to 2
     grad_r[1, 2] = [1.0, 0.0, 0.0]  # < 4: kept
     t, r = limit_gradients(E, grad_t, grad_r, zone)
-    assert GRADIENT_LIMIT == 0.2
-    np.testing.assert_allclose(t[0, 0], [0.48, 0.64, 0.0])
+    assert GRADIENT_LIMIT == 0.3
+    np.testing.assert_allclose(t[0, 0], [0.72, 0.96, 0.0])
     np.testing.assert_array_equal(t[0, 1], grad_t[0, 1])
     np.testing.assert_array_equal(t[0, 2], 0.0)
     np.testing.assert_array_equal(t[1], grad_t[1])
