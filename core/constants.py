@@ -171,12 +171,14 @@ NEAREST_RECORDS = 8
 # --------------------------------------------------------------------------- light-map stage
 HOLE_ROUNDS = 3
 """Rounds of hole records (section 3.4) before falling back to the nearest record."""
-GAP_TEXELS = 2.0
+GAP_TEXELS = 1.0
 """Texel samples no zone accepts first try the records' zones widened by this many texels (deviation:
 gap-fill): pass 3 shrinks R_k after pass 2 placed the records, leaving thin gaps between zones.
-Measured on the Cornell box at 256^2 (Final): 1 texel cuts the hole records by 36 %, 2 texels by
-52 %, at unchanged error; widening zones in proportion to R_k (x1.5) instead raised the floor's
-8x8-block error from 12 to 15 %: large zones carried light into the blocks' contact shadows."""
+Measured (docs/DEVIATIONS.md gap-fill): 2 texels placed the fewest hole records, but a sample 2
+texels past a zone takes E_k from its edge where the light has moved on; on Sponza at 16 texels/m
+1 texel costs 4 % more CPU for 7 % less interior indirect error per texel, 0.5 texel 12 % more for
+11 % less. Widening zones in proportion to R_k (x1.5) instead raised the Cornell floor's 8x8-block
+error from 12 to 15 %: large zones carried light into the blocks' contact shadows."""
 FINE_ZONE_TEXELS = 4.0
 """Texels whose smallest accepted zone of influence is narrower than this many texels are
 interpolated per sample rather than once at their centroid (deviation: fine-zones)."""
