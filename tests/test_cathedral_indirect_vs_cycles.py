@@ -13,7 +13,8 @@ docs/DEVIATIONS.md corner-gathering; 1,560 blocks judged): mean 0.996 of Cycles,
 at half Cycles' light or less, 5.8 % off by more than 20 % (before 0.995, 2.1 %, 7.4 %); on Python
 3.13 / bpy 5.2.3, whose unwrap and Cycles differ, 1,583 blocks, 0.991, 3.4 %, 5.4 % (before 0.991,
 3.5 %, 8.3 %). Session 25's gradient limit (0.3 x E_k across a zone, docs/DEVIATIONS.md
-gradient-limiting), Python 3.11: 0.997, 2.1 %, 5.6 %.
+gradient-limiting), Python 3.11: 0.997, 2.1 %, 5.6 %; session 26's gap-fill one texel wide and
+per-sample lookups in zones under 16 texels (docs/DEVIATIONS.md gap-fill, fine-zones): 0.997, 2.1 %, 5.4 %.
 Before, with Blender's default surface (a Principled BSDF to Cycles, whose specular layer takes 3 %
 of the indirect light; PDIC reads diffuse 0.8 either way), 1.027, 2.1 %, 9.7 %. Session 22 rebuilt
 the stairs as one solid flight (they were nested boxes whose coplanar flanks Cycles bakes black);
@@ -22,8 +23,8 @@ Before session 21 counted faces lit from behind as open space and gathered in ga
 (docs/DEVIATIONS.md photon-evidence, gap-gathering) 1.033, 3.1 % and 11.8 %, the dark blocks
 4-8-texel pieces of small surfaces (column-base tops, capital undersides, tracery) that no
 like-facing photon reached; in session 12, with photon evidence off, 0.877, 18.2 % and 38.0 %.
-bench/cathedral_indirect.py runs the 512^2, 1,024-spp version at detail 0.3 (12.5 % per texel,
-mean 0.991, 2.5 % of blocks off by more than 20 %; session 24: 12.7 %, 0.990, 2.5 %).
+bench/cathedral_indirect.py runs the 512^2, 1,024-spp version at detail 0.3 (12.2 % per texel,
+mean 0.991, 2.5 % of blocks off by more than 20 %; session 25: 12.5 %, 0.991, 2.5 %).
 """
 from __future__ import annotations
 
