@@ -174,17 +174,14 @@ HOLE_ROUNDS = 3
 GAP_TEXELS = 1.0
 """Texel samples no zone accepts first try the records' zones widened by this many texels (deviation:
 gap-fill): pass 3 shrinks R_k after pass 2 placed the records, leaving thin gaps between zones.
-Measured (docs/DEVIATIONS.md gap-fill): 2 texels placed the fewest hole records, but a sample 2
-texels past a zone takes E_k from its edge where the light has moved on; on Sponza at 16 texels/m
-1 texel costs 4 % more CPU for 7 % less interior indirect error per texel, 0.5 texel 12 % more for
-11 % less. Widening zones in proportion to R_k (x1.5) instead raised the Cornell floor's 8x8-block
-error from 12 to 15 %: large zones carried light into the blocks' contact shadows."""
+Wider fills more gaps with fewer hole records, but a sample far past a zone takes E_k from its edge
+where the light has moved on; widening zones in proportion to R_k instead carried light into
+contact shadows (docs/DEVIATIONS.md gap-fill)."""
 FINE_ZONE_TEXELS = 16.0
 """Texels whose smallest accepted zone of influence is narrower than this many texels are
-interpolated per sample rather than once at their centroid (deviation: fine-zones). 4 until session
-26; 16 took Sponza at 16 texels/m from 5.55 to 5.26 % interior indirect error per texel at +0-2 %
-CPU and the Cornell box at 256^2 from 2.92 to 2.80 % at +5 %; every texel (no threshold) cost the
-Cornell box, whose zones are wide and overlap by the dozen, 50 % more CPU for 2.78 %."""
+interpolated per sample rather than once at their centroid (deviation: fine-zones): a zone that
+narrow changes within a texel. Not every texel: wide zones overlap by the dozen, and per-sample
+lookups over all of them cost the Cornell box at 256^2 half its time again (docs/DEVIATIONS.md)."""
 VALIDITY_RAYS = 8
 """Hemisphere rays per texel sample (at most) of the texel validity test."""
 COVERED_TEXELS = 0.1
