@@ -126,12 +126,14 @@ METRICS = ("texel", "block", "texel_interior", "block_interior")
 """Error metrics: per texel and on block means, over the centre texels and over interior texels only."""
 
 
-def errors(test: np.ndarray, pair: tuple, mask: np.ndarray, interior: np.ndarray | None = None) -> dict:
+def errors(test: np.ndarray, pair: tuple, mask: np.ndarray, interior: np.ndarray | None = None,
+           block: int = BLOCK) -> dict:
     """Noise-corrected relative RMSE of ``test`` (H, W, 3) against a seed pair, per texel and per block.
 
     pair : two (H, W, 3) float32 bakes with other seeds than ``test``; mask : (H, W) bool texels compared;
     interior : (H, W) bool, optional: the same again over ``mask & interior`` (``texel_interior``,
     ``block_interior``; ``bench.run.interior_texels``: texels both bakers define alike).
+    block : texels per side of the blocks whose means are compared.
     Returns {"texel": float, "block": float} (fractions, 0.02 = 2 %) and "mean_ratio", the
     mean of ``test`` over the pair's (a bias no block size forgives: 0.9 = 10 % too dark).
     """
@@ -142,11 +144,11 @@ def errors(test: np.ndarray, pair: tuple, mask: np.ndarray, interior: np.ndarray
                                                           dict(images={"m": b}, coverage={"m": m})])
 
     out = {"texel": corrected(test, pair[0], pair[1], mask)}
-    (x, blocks), (a, _), (b, _) = (block_means(v, mask) for v in (test, pair[0], pair[1]))
+    (x, blocks), (a, _), (b, _) = (block_means(v, mask, block) for v in (test, pair[0], pair[1]))
     out["block"] = corrected(x, a, b, blocks)
     out["mean_ratio"] = float(test[mask].mean() / max(0.5 * (pair[0][mask].mean() + pair[1][mask].mean()), 1e-30))
     if interior is not None:
-        inner = errors(test, pair, mask & interior)
+        inner = errors(test, pair, mask & interior, block=block)
         out["texel_interior"], out["block_interior"] = inner["texel"], inner["block"]
     return out
 
