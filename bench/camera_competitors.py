@@ -1,6 +1,6 @@
 """Cycles + OIDN against PDIC as a camera sees their light maps.
 
-    .venv/bin/python bench/camera_competitors.py [--scene sponza16|occluded|cornell256] [--ladder 4,16,64]
+    .venv/bin/python bench/camera_competitors.py [--scene sponza16|sponza2048|occluded|cornell256] [--ladder 4,16,64]
         [--camera-spp 256]
 
 (OIDN is a bench dependency: ``.venv/bin/python -m pip install -r requirements-bench.txt``, as
@@ -56,12 +56,14 @@ VIEWS = {
     # along the atrium from its west end, and into the south arcade
     "sponza16": [((-12.0, 0.0, 1.7), (8.0, 2.5, 2.5), 0.75), ((3.0, 1.0, 1.6), (9.0, -5.5, 1.5), 0.75)],
 }
+VIEWS["sponza2048"] = VIEWS["sponza16"]
 BLOCK = 4
 """Pixels per side of the blocks whose means are compared (issue #12's camera measure)."""
 REFERENCE_SEEDS = (1, 2)
 EXTRAPOLATION_LIMIT = 4.0
 """Equal-error times past this multiple of the ladder's dearest rung are reported as not reached."""
-CROPS = {"sponza16": (10, 190, 680, 920), "occluded": (40, 230, 100, 400), "cornell256": (60, 270, 100, 380)}
+CROPS = {"sponza16": (10, 190, 680, 920), "sponza2048": (10, 190, 680, 920), "occluded": (40, 230, 100, 400),
+         "cornell256": (60, 270, 100, 380)}
 """(row0, row1, col0, col1) of the views side by side that the crop sheet shows."""
 
 
