@@ -90,6 +90,29 @@ def render(path: Path, diffuse_bounces: int) -> np.ndarray:
     return pixels.reshape(height, width, 4)[::-1, :, :3]
 
 
+def camera_settings(spp: int, seed: int | None = None) -> None:
+    """Cycles on the CPU at ``spp`` samples per pixel, no adaptive sampling, denoising or clamping, the
+    bench's bounces, a pixel filter of 0.01 (a pixel is its own area, in effect its centre's point),
+    32-bit EXR output; ``seed`` (None: the scene's as it is) fixed, not animated, no time limit."""
+    scene = bpy.context.scene
+    scene.render.engine = "CYCLES"
+    cycles = scene.cycles
+    cycles.device, cycles.samples, cycles.use_adaptive_sampling, cycles.use_denoising = "CPU", spp, False, False
+    if seed is not None:
+        cycles.seed, cycles.use_animated_seed, cycles.time_limit = seed, False, 0.0
+    cycles.sample_clamp_direct = cycles.sample_clamp_indirect = 0.0
+    cycles.max_bounces = competitors.CYCLES_BOUNCES
+    cycles.filter_width = 0.01
+    scene.render.image_settings.file_format = "OPEN_EXR"
+    scene.render.image_settings.color_depth = "32"
+
+
+def world_offset(scene) -> np.ndarray:
+    """(3,) world minus scene-local position: the extraction only translates (its lights give it)."""
+    lights = {o.name: np.array(o.location) for o in bpy.data.objects if o.type == "LIGHT"}
+    return lights[scene.lights[0].name] - scene.lights[0].position
+
+
 def camera_indirect(points: np.ndarray, pixel: float, spp: int, folder: Path) -> np.ndarray:
     """(n, 3) indirect E / pi at world points (n, 3) on up-facing floor, from an orthographic camera above."""
     scene = bpy.context.scene
@@ -102,15 +125,8 @@ def camera_indirect(points: np.ndarray, pixel: float, spp: int, folder: Path) ->
     camera.location = (*(0.5 * (lo + hi)), points[:, 2].max() + 100.0)
     scene.collection.objects.link(camera)
     scene.camera = camera
-    scene.render.engine = "CYCLES"
-    cycles = scene.cycles
-    cycles.device, cycles.samples, cycles.use_adaptive_sampling, cycles.use_denoising = "CPU", spp, False, False
-    cycles.sample_clamp_direct = cycles.sample_clamp_indirect = 0.0
-    cycles.max_bounces = competitors.CYCLES_BOUNCES
-    cycles.filter_width = 0.01  # a pixel is the mean over its own area only
+    camera_settings(spp)
     scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = cols, rows, 100
-    scene.render.image_settings.file_format = "OPEN_EXR"
-    scene.render.image_settings.color_depth = "32"
     for material in bpy.data.materials:
         if material.node_tree is not None:
             white_for_camera(material)
@@ -142,10 +158,7 @@ def main(argv=None):
     position, normal, centre = competitors.texel_geometry(scene)
     height, width = centre.shape
     index = sky_texels(scene, position, normal, centre)
-    # scene-local to world: the extraction only translates (its lights' offset)
-    lights = {o.name: np.array(o.location) for o in bpy.data.objects if o.type == "LIGHT"}
-    offset = lights[scene.lights[0].name] - scene.lights[0].position
-    points = position.reshape(-1, 3)[index] + offset
+    points = position.reshape(-1, 3)[index] + world_offset(scene)
     rows, cols = np.unravel_index(index, (height, width))
     t = time.perf_counter()
     pair = competitors.reference_pair(obj, (width, height), competitors.PASS_SETS["indirect"], args.bake_spp,

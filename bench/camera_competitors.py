@@ -43,8 +43,8 @@ import bpy  # noqa: E402
 
 from pdic import pdic_addon  # noqa: E402
 from pdic.bench import competitors  # noqa: E402
-from pdic.bench.bake_vs_camera import render, white_for_camera  # noqa: E402
-from pdic.core.camera_render import Camera, bilinear  # noqa: E402
+from pdic.bench.bake_vs_camera import camera_settings, render, white_for_camera, world_offset  # noqa: E402
+from pdic.core.camera_render import Camera, bilinear, lightmap_uvs  # noqa: E402
 from pdic.core.rays import RayCaster  # noqa: E402
 
 VIEWS = {
@@ -95,17 +95,9 @@ def core_camera(camera, offset: np.ndarray, half_width: float, width: int, heigh
 
 
 def camera_reference(spp: int, seed: int, folder: Path) -> np.ndarray:
-    """(rows, cols, 3) Cycles' E / pi at each pixel's point (materials already white for camera rays)."""
-    scene = bpy.context.scene
-    scene.render.engine = "CYCLES"
-    cycles = scene.cycles
-    cycles.device, cycles.samples, cycles.use_adaptive_sampling, cycles.use_denoising = "CPU", spp, False, False
-    cycles.seed, cycles.use_animated_seed, cycles.time_limit = seed, False, 0.0
-    cycles.sample_clamp_direct = cycles.sample_clamp_indirect = 0.0
-    cycles.max_bounces = competitors.CYCLES_BOUNCES
-    cycles.filter_width = 0.01  # a pixel is the point at its centre, as the light-map renderer's ray
-    scene.render.image_settings.file_format = "OPEN_EXR"
-    scene.render.image_settings.color_depth = "32"
+    """(rows, cols, 3) Cycles' E / pi at each pixel's point (materials already white for camera rays);
+    pixel filter 0.01: a pixel is the point at its centre, as the light-map renderer's ray."""
+    camera_settings(spp, seed)
     return render(folder / f"camera_{seed}.exr", competitors.CYCLES_BOUNCES)
 
 
@@ -118,14 +110,10 @@ def lightmap_view(scene, caster: RayCaster, camera: Camera, width: int, height: 
     hit = np.flatnonzero(hits.hit)
     tri = hits.triangle[hit]
     front = np.einsum("ij,ij->i", caster.face_normals[tri], directions[hit]) < 0
-    local = np.full(g.count, -1, np.int64)
-    local[target.triangles] = np.arange(len(target.triangles))
-    keep = front & (local[tri] >= 0)
+    keep = front & (g.target[tri] == 0)
     hit, tri = hit[keep], tri[keep]
     u, v = hits.barycentric[hit, 0:1], hits.barycentric[hit, 1:2]
-    weights = np.stack([1.0 - u - v, u, v], axis=1)
-    uv = (target.lightmap_uv[local[tri]] * weights).sum(axis=1)
-    return uv, hit
+    return lightmap_uvs(target, g.count, tri, np.stack([1.0 - u - v, u, v], axis=1)), hit
 
 
 def seen(image: np.ndarray, view, shape) -> np.ndarray:
@@ -146,8 +134,7 @@ def bake_maps(scene, obj, ladder, normal) -> dict:
     size = (target.width, target.height)
     result, wall, cpu = competitors.clocked(bake, scene, preset("FINAL"))
     maps = {"PDIC Final": (result.lightmaps[target.name], None, wall, cpu)}
-    for mode in competitors.DENOISERS:  # OIDN loads its weights on first use
-        competitors.denoise(np.ones((16, 16, 3), np.float32), mode, np.ones((16, 16, 3), np.float32))
+    competitors.warm_up_denoisers()
     for spp in ladder:
         b = competitors.cycles_bake(obj, size, competitors.PASS_SETS["all"], spp, competitors.LADDER_SEED)
         maps[f"Cycles {spp}"] = (b["image"], spp, b["wall"], b["cpu"])
@@ -246,12 +233,10 @@ def main(argv=None):
     obj, scene = competitors.load_scene(competitors.SCENES[args.scene], work)
     competitors.set_cycles_threads(2)
     _, normal, _ = competitors.texel_geometry(scene)
-    lights = {o.name: np.array(o.location) for o in bpy.data.objects if o.type == "LIGHT"}
-    offset = lights[scene.lights[0].name] - scene.lights[0].position  # the extraction only translates
 
     maps = bake_maps(scene, obj, [int(s) for s in args.ladder.split(",")], normal)
     shape = (args.height, args.width)
-    looks, refs = camera_views(scene, offset, VIEWS[args.scene], shape, args.camera_spp)
+    looks, refs = camera_views(scene, world_offset(scene), VIEWS[args.scene], shape, args.camera_spp)
     rows, seen_by, mask, pair = compare(maps, looks, refs, shape)
     reference = 0.5 * (pair[0] + pair[1])
     # the reference's own noise per pixel: the pair's mean is off by half their difference's RMS

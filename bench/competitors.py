@@ -258,11 +258,17 @@ def denoise(image: np.ndarray, mode: str, normal: np.ndarray) -> np.ndarray:
     raise ValueError(f"unknown denoiser {mode!r}; expected one of {DENOISERS}")
 
 
+def warm_up_denoisers() -> None:
+    """Run each OIDN filter once on a tiny image: OIDN loads its weights on first use, which is not a
+    cost of the cheapest rung."""
+    for mode in DENOISERS:
+        denoise(np.ones((16, 16, 3), np.float32), mode, np.ones((16, 16, 3), np.float32))
+
+
 def cycles_ladder(obj, size, spec: SceneSpec, refs: dict, mask, normal, keep_spp: int, interior=None) -> tuple:
     """Raw and denoised Cycles bakes on the ladder: (rows, {(kind, method): image at ``keep_spp``})."""
     rows, kept = [], {}
-    for mode in DENOISERS:  # OIDN loads its weights on first use: not a cost of the cheapest rung
-        denoise(np.ones((16, 16, 3), np.float32), mode, np.ones((16, 16, 3), np.float32))
+    warm_up_denoisers()
     for spp in spec.ladder:
         for kind, passes in PASS_SETS.items():
             bake = cycles_bake(obj, size, passes, spp, LADDER_SEED)

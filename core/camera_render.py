@@ -84,6 +84,14 @@ def bilinear(image: np.ndarray, uv: np.ndarray, wrap: bool = False) -> np.ndarra
     return (bottom * (1 - fy) + top * fy).astype(np.float32)
 
 
+def lightmap_uvs(target, triangle_count: int, tri: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """(n, 2) light-map UVs of points on ``target``'s triangles: tri (n,) scene triangle indices (all
+    the target's), weights (n, 3, 1) their corner weights (1 - u - v, u, v of a hit's barycentrics)."""
+    local = np.full(triangle_count, -1, np.int64)
+    local[target.triangles] = np.arange(len(target.triangles))
+    return (target.lightmap_uv[local[tri]] * weights).sum(axis=1)
+
+
 def render_preview(scene: Scene, lightmaps: dict, camera: Camera, width: int, height: int,
                    caster: RayCaster | None = None) -> np.ndarray:
     """Linear radiance seen by ``camera`` lit only by the light maps.
@@ -126,9 +134,7 @@ def render_preview(scene: Scene, lightmaps: dict, camera: Camera, width: int, he
             image = lightmaps.get(target.name)
             if len(sel) == 0 or image is None:
                 continue
-            local = np.full(g.count, -1, np.int64)
-            local[target.triangles] = np.arange(len(target.triangles))
-            uv = (target.lightmap_uv[local[tri[sel]]] * weights[sel]).sum(axis=1)
+            uv = lightmap_uvs(target, g.count, tri[sel], weights[sel])
             color[sel] += albedo[sel] * bilinear(np.asarray(image)[..., :3], uv)
         radiance[hit] = color
     radiance = np.nan_to_num(radiance, nan=0.0, posinf=0.0, neginf=0.0)
