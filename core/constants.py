@@ -30,6 +30,9 @@ STREAM_VALIDITY = 12
 STREAM_DIRECT_FOOTPRINT = 13
 """Direct light over edge texels' footprints: jitter ``[seed, 13, target stream]``, shadow rays
 ``[seed, 13, target stream, 1, chunk]`` (core/direct_footprint.py)."""
+STREAM_DIRECT_EDGE = 16
+"""The edge probes of soft emitters at texel samples (core/direct.py ``edge_evidence``),
+``[seed, 10, target stream, chunk, 16]``."""
 STREAM_VALIDITY_FOOTPRINT = 15
 """Texel validity over straddling texels' footprints: jitter ``[seed, 15, target stream]``, rays
 ``[seed, 15, target stream, 1]`` (core/validity.py ``indirect_weights``)."""
@@ -225,7 +228,7 @@ Blender 5.2.3 side 1.0 0.74 %, 0.5 10.7 % (the whole texel). See
 CYCLES_WHOLE_TEXEL_FOOTPRINT = (5, 2, 0)
 """First Blender version measured to bake the whole texel (footprint side 1.0); earlier: 0.5."""
 DIRECT_EDGE_CONTRAST = 0.05
-"""A texel is an edge texel when its samples' lit shares E / E_unoccluded differ by more than this,
+"""A texel is an edge texel when its samples' lit shares (core/direct.py edge_evidence) differ by more than this,
 or its mean lit share differs by more from a neighbour's on the same surface (lit shares are 1 or
 0 away from shadow edges, so smooth falloff never triggers it)."""
 DIRECT_EDGE_FLOOR = 1e-3

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .constants import STREAM_DIRECT_EDGE
 from .executor import TEXEL_CHUNK, slices
 from .lights import EMISSIVE_KEY, WORLD_KEY, SceneError, ShadowSamples, spot_attenuation  # noqa: F401 (re-exported)
 from .rays import RayCaster
@@ -49,8 +50,9 @@ class DirectResult:
     """Direct irradiance of a chunk of n points, with work counters.
 
     E : (n, 3) float64 front-side irradiance, W/m^2 (texel value is E / pi).
-    E_unoccluded : (n, 3) float64 the same samples' irradiance with every shadow ray unblocked
-        (no extra rays); E / E_unoccluded is the lit share, 1 or 0 away from shadow edges.
+    edge_lit, edge_open : (n, 3) float64 the edge evidence (zeros unless asked for,
+        :func:`edge_evidence`): irradiance of samples independent of E's, and the same with every
+        ray unblocked; edge_lit / edge_open is a lit share, 1 or 0 away from shadow edges.
     shadow_rays : rays traced per light kind (keys of :data:`LIGHT_KINDS`).
     skipped : per light name (and :data:`EMISSIVE_KEY`, :data:`WORLD_KEY`): points that
         cast no shadow ray toward it (facing away, outside a spot cone, behind an area
@@ -58,25 +60,28 @@ class DirectResult:
     """
 
     E: np.ndarray
-    E_unoccluded: np.ndarray | None = None
+    edge_lit: np.ndarray | None = None
+    edge_open: np.ndarray | None = None
     shadow_rays: dict = field(default_factory=lambda: {k: 0 for k in LIGHT_KINDS})
     skipped: dict = field(default_factory=dict)
 
     @staticmethod
     def concatenate(results: list["DirectResult"]) -> "DirectResult":
         """Join chunk results in order: E stacked, counters summed."""
-        E = np.concatenate([r.E for r in results]) if results else np.zeros((0, 3))
-        E_unoccluded = np.concatenate([r.E_unoccluded for r in results]) if results else np.zeros((0, 3))
+        def stack(name):
+            return np.concatenate([getattr(r, name) for r in results]) if results else np.zeros((0, 3))
+
         rays = {k: sum(r.shadow_rays.get(k, 0) for r in results) for k in LIGHT_KINDS}
         skipped: dict = {}
         for r in results:
             for k, v in r.skipped.items():
                 skipped[k] = skipped.get(k, 0) + v
-        return DirectResult(E, E_unoccluded, rays, skipped)
+        return DirectResult(stack("E"), stack("edge_lit"), stack("edge_open"), rays, skipped)
 
 
 def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, normals: np.ndarray,
-                      geo_normals: np.ndarray, samples: int, rng: np.random.Generator) -> DirectResult:
+                      geo_normals: np.ndarray, samples: int, rng: np.random.Generator,
+                      edge_rng: np.random.Generator | None = None) -> DirectResult:
     """Irradiance from every light, emissive triangle and the world at ``points``.
 
     Parameters
@@ -90,6 +95,7 @@ def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, norma
         an angle, point/spot with a radius), stratified; hard point lights and a sun
         without angle use one ray. Typical 16 (``BakeSettings.direct_samples``).
     rng : random stream for this chunk.
+    edge_rng : with it, also the edge evidence (:func:`edge_evidence`), its probes drawn from it.
 
     Returns
     -------
@@ -105,7 +111,7 @@ def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, norma
         raise ValueError("direct_irradiance: non-finite receiving points")
     if samples < 1:
         raise ValueError(f"direct_irradiance: samples must be >= 1, got {samples}")
-    out = DirectResult(np.zeros((n, 3)), np.zeros((n, 3)))
+    out = DirectResult(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)))
     if n == 0:
         return out
     for emitter in scene.emitters():
@@ -114,9 +120,36 @@ def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, norma
         shadow = emitter.sample_toward(caster, p, n_s, n_g, samples, rng)
         if shadow is None:  # the emitter sends nothing (no power)
             _skip_all(out, emitter.name, n)
-        else:
-            _trace(out, caster, p, n_g, shadow)
+            continue
+        vis = _trace(out, caster, p, n_g, shadow)
+        if edge_rng is not None:
+            edge_evidence(out, caster, p, n_s, n_g, emitter, shadow, vis, edge_rng)
     return out
+
+
+def edge_evidence(out: DirectResult, caster: RayCaster, p, n_s, n_g, emitter, shadow: ShadowSamples,
+                  vis: np.ndarray, rng: np.random.Generator) -> None:
+    """Add one emitter's share of the edge evidence at points p to ``out.edge_lit`` and ``out.edge_open``
+    (deviation: direct-footprint, which re-integrates texels whose samples' evidence disagrees).
+
+    The evidence must not be the estimate E keeps: a texel judged on its own noisy samples is
+    re-integrated when they came out unequal and keeps them when they came out equal, which for a
+    soft emitter mostly hidden (the sky through a window: a room's walls read 0.80 of Cycles) keeps
+    the unlucky zeros and redraws the lucky hits. So an exact emitter (``shadow.exact``: its one ray
+    is its visibility) gives its own samples ``vis`` (k, m); a soft one, one ray per point drawn from
+    ``rng``; the world none: its light has no edge, a wall's foot darkens it smoothly.
+    """
+    if shadow.kind == "world":
+        return
+    if not shadow.exact:
+        shadow = emitter.sample_toward(caster, p, n_s, n_g, 1, rng)
+        if shadow is None:
+            return
+        vis = _visibility(caster, p, n_g, shadow)
+        out.shadow_rays[shadow.kind] += int(shadow.ok.sum())
+    unoccluded = np.where(shadow.ok, shadow.weight, 0.0)
+    _accumulate(out.edge_lit, shadow, unoccluded * vis)
+    _accumulate(out.edge_open, shadow, unoccluded)
 
 
 # --------------------------------------------------------------------------- helpers
@@ -127,12 +160,24 @@ def _shape_check(a, n, name):
     return np.nan_to_num(a)
 
 
-def _trace(out: DirectResult, caster: RayCaster, p, n_g, shadow: ShadowSamples) -> None:
-    """Trace the shadow rays of accepted samples and add colour * mean(weight * transmittance) to out.E[idx]."""
-    idx, ok, weight = shadow.idx, shadow.ok, shadow.weight
-    k, m = ok.shape
+def _trace(out: DirectResult, caster: RayCaster, p, n_g, shadow: ShadowSamples) -> np.ndarray:
+    """Trace the shadow rays of accepted samples, add colour * mean(weight * transmittance) to out.E[idx]
+    and return the transmittances (k, m)."""
+    vis = _visibility(caster, p, n_g, shadow)
+    traced_rows = np.flatnonzero(shadow.ok.any(axis=1))
+    out.shadow_rays[shadow.kind] += int(shadow.ok.sum())
+    traced = np.zeros(len(p), bool)
+    traced[shadow.idx[traced_rows]] = True
+    out.skipped[shadow.key] = out.skipped.get(shadow.key, 0) + int(len(p) - traced.sum())
+    _accumulate(out.E, shadow, np.where(shadow.ok, shadow.weight, 0.0) * vis)
+    return vis
+
+
+def _visibility(caster: RayCaster, p, n_g, shadow: ShadowSamples) -> np.ndarray:
+    """(k, m) transmittance of each accepted sample's shadow ray (0 for the others)."""
+    idx, ok = shadow.idx, shadow.ok
     rows, cols = np.nonzero(ok)
-    vis = np.zeros((k, m))
+    vis = np.zeros(ok.shape)
     if len(rows):
         pi, ni = np.take(p, idx[rows], axis=0), np.take(n_g, idx[rows], axis=0)
         # Transmissive layers pass their share of the light (deviation: transparent-shadows).
@@ -140,16 +185,15 @@ def _trace(out: DirectResult, caster: RayCaster, p, n_g, shadow: ShadowSamples) 
             vis[rows, cols] = caster.transmittance_between(pi, ni, shadow.targets[rows, cols], None)
         else:
             vis[rows, cols] = caster.transmittance(pi, shadow.directions[rows, cols], np.inf, ni)
-    out.shadow_rays[shadow.kind] += len(rows)
-    traced = np.zeros(len(p), bool)
-    traced[idx[rows]] = True
-    out.skipped[shadow.key] = out.skipped.get(shadow.key, 0) + int(len(p) - traced.sum())
-    unoccluded = np.where(ok, weight, 0.0)
-    for E, contribution in ((out.E, unoccluded * vis), (out.E_unoccluded, unoccluded)):
-        if shadow.colour.ndim == 3:  # a colour per sample (emissive triangles of different radiance)
-            E[idx] += (contribution[..., None] * shadow.colour).sum(axis=1) / shadow.samples
-        else:
-            E[idx] += shadow.colour * (contribution.sum(axis=1) / shadow.samples)[:, None]
+    return vis
+
+
+def _accumulate(E: np.ndarray, shadow: ShadowSamples, contribution: np.ndarray) -> None:
+    """E[idx] += colour x the samples' mean ``contribution`` (k, m)."""
+    if shadow.colour.ndim == 3:  # a colour per sample (emissive triangles of different radiance)
+        E[shadow.idx] += (contribution[..., None] * shadow.colour).sum(axis=1) / shadow.samples
+    else:
+        E[shadow.idx] += shadow.colour * (contribution.sum(axis=1) / shadow.samples)[:, None]
 
 
 def _skip_all(out: DirectResult, key: str, n: int):
@@ -163,14 +207,16 @@ def shade_direct(scene: Scene, caster: RayCaster, p: np.ndarray, n_shading: np.n
 
     stream : int or sequence of ints after ``seed`` in each chunk's generator
         ``default_rng([seed, *stream, chunk])`` (core/constants.py lists the streams).
-    whole : return the merged :class:`DirectResult` (``E_unoccluded`` too) instead of its E.
+    whole : return the merged :class:`DirectResult` with the edge evidence (:func:`edge_evidence`, its
+        probes from ``[seed, *stream, chunk, STREAM_DIRECT_EDGE]``) instead of its E.
     """
     serial = caster.serial()
     prefix = [seed, *np.atleast_1d(stream).tolist()]
 
     def run(index, s):
         rng = np.random.default_rng([*prefix, index])
-        return direct_irradiance(scene, serial, p[s], n_shading[s], n_geometric[s], samples, rng)
+        edge_rng = np.random.default_rng([*prefix, index, STREAM_DIRECT_EDGE]) if whole else None
+        return direct_irradiance(scene, serial, p[s], n_shading[s], n_geometric[s], samples, rng, edge_rng)
 
     merged = DirectResult.concatenate(executor.map_chunks(run, slices(len(p), TEXEL_CHUNK), progress))
     counters = {f"shadow_rays_{k}": v for k, v in merged.shadow_rays.items()}

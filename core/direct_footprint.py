@@ -6,8 +6,8 @@ hard shadow edge crosses holds the lit share of that square. ``texel_samples`` (
 points alias there: a texel reads 0, 1/4, ..., 1 whatever the edge's position (Cornell 256^2,
 direct light alone: 13.0 % per texel against Cycles). Here, after direct light at the regular samples:
 
-1. **Edge texels** (:func:`edge_texels`): a texel whose samples' lit shares E / E_unoccluded
-   disagree by more than ``DIRECT_EDGE_CONTRAST`` (where the samples' hull is narrower than the
+1. **Edge texels** (:func:`edge_texels`): a texel whose samples' lit shares (from the edge
+   evidence, :func:`core.direct.edge_evidence`: independent of the light they keep) disagree by more than ``DIRECT_EDGE_CONTRAST`` (where the samples' hull is narrower than the
    footprint, also one whose mean lit share differs that much from a 4-neighbour's on the same
    surface, centroids within ``DIRECT_NEIGHBOUR_TEXELS`` texel sizes).
 2. **Footprint**: ``DIRECT_FOOTPRINT_PER_AXIS``^2 stratified jittered points over each edge texel's
@@ -39,13 +39,15 @@ def edge_texels(direct: DirectResult, points: TexelPoints, raster: TargetRaster,
                 neighbours: bool, contrast: float = DIRECT_EDGE_CONTRAST) -> np.ndarray:
     """Flat indices (k,) int64, ascending, of the texels a shadow edge may cross.
 
-    Judged on each sample's lit share s = L(E) / L(E_unoccluded) (L the luminance): 1 in full
-    light, 0 in umbra, whatever the falloff, so smooth light (which the symmetric 2 x 2 samples
-    already integrate to second order) costs nothing here.
+    Judged on each sample's lit share s = L(edge_lit) / L(edge_open) (L the luminance, the edge
+    evidence of :func:`core.direct.edge_evidence`): 1 in full light, 0 in umbra, whatever the
+    falloff, so smooth light (which the symmetric 2 x 2 samples already integrate to second order)
+    costs nothing here. The evidence is not the samples' E: judged on E, a texel would keep its
+    samples when their noise came out even and lose them when it did not (a biased choice).
 
     Parameters
     ----------
-    direct : the regular samples' :class:`DirectResult` (``E`` and ``E_unoccluded``, (n, 3) W/m^2).
+    direct : the regular samples' :class:`DirectResult` (``edge_lit`` and ``edge_open``, (n, 3) W/m^2).
     points : that target's samples (``texel``, ``weight``, ``p``).
     raster : its image size and coverage.
     texel_size : world size of one texel (neighbours farther apart than
@@ -58,11 +60,12 @@ def edge_texels(direct: DirectResult, points: TexelPoints, raster: TargetRaster,
     contrast : lit-share difference that marks an edge (typical 0.05).
     """
     size = raster.width * raster.height
-    L_open = np.asarray(direct.E_unoccluded, np.float64) @ LUMINANCE
+    L_open = np.asarray(direct.edge_open, np.float64) @ LUMINANCE
     floor = DIRECT_EDGE_FLOOR * float(L_open.max(initial=0.0))
-    if floor <= 0:  # no direct light on this target
+    if floor <= 0:  # no direct light with edges on this target
         return np.zeros(0, np.int64)
-    lit = np.where(L_open > floor, (np.asarray(direct.E, np.float64) @ LUMINANCE) / np.maximum(L_open, floor), 1.0)
+    lit = np.where(L_open > floor, (np.asarray(direct.edge_lit, np.float64) @ LUMINANCE) / np.maximum(L_open, floor),
+                   1.0)
     texel = points.texel
     w = points.weight.astype(np.float64)
     w_sum = np.bincount(texel, weights=w, minlength=size)

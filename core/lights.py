@@ -53,7 +53,9 @@ class ShadowSamples:
     idx : (k,) receiving point indices. weight : (k, m) radiance x cosines / pdf (colour apart).
     ok : (k, m) samples worth a ray. colour : (3,) or per sample (k, m, 3).
     samples : the estimator's divisor. targets : (k, m, 3) points on the emitter, or
-    directions : (k, m, 3) for rays to infinity (sun, world).
+    directions : (k, m, 3) for rays to infinity (sun, world). exact : the samples are no draw but
+    the emitter itself (one ray to a point light of radius 0 or along a sun of angle 0): their
+    visibility is the point's lit share, not an estimate of it.
     """
 
     kind: str
@@ -65,10 +67,11 @@ class ShadowSamples:
     colour: np.ndarray
     samples: int
     directions: np.ndarray | None = None
+    exact: bool = False
 
 
-def _samples(kind, key, caster, idx, p, n_g, targets, weight, ok, colour, samples, directions=None):
-    return ShadowSamples(kind, key, idx, targets, weight, ok, colour, samples, directions)
+def _samples(kind, key, caster, idx, p, n_g, targets, weight, ok, colour, samples, directions=None, exact=False):
+    return ShadowSamples(kind, key, idx, targets, weight, ok, colour, samples, directions, exact)
 
 
 def _dot(a, b):
@@ -385,7 +388,7 @@ def _point_like(kind, light, attenuation, caster, p, n_s, n_g, samples, rng):
         weight = f * cos_s / (4.0 * np.pi * d * d)
         ok &= weight > 0
         return _samples(kind, light.name, caster, idx, p, n_g, np.broadcast_to(c, (len(idx), 1, 3)),
-                     weight[:, None], ok[:, None], P, 1)
+                     weight[:, None], ok[:, None], P, 1, exact=True)
 
     u = sampling.stratified_2d(len(idx), samples, rng)
     soft_falloff = bool(light.soft_falloff)
@@ -462,7 +465,7 @@ def _sun(light: "SunLight", caster, p, n_s, n_g, samples, rng):
         ok = (cos_s > 0) & (_dot(ngk, s) > 0)
         directions = np.broadcast_to(s, (len(idx), 1, 3))
         return _samples("sun", light.name, caster, idx, p, n_g, None, cos_s[:, None], ok[:, None], S, 1,
-                     directions=directions)
+                     directions=directions, exact=True)
     one_minus_cos = 2.0 * np.sin(0.5 * alpha) ** 2
     u = sampling.stratified_2d(len(idx), samples, rng)
     w_local, pdf = sampling.uniform_cone(u, one_minus_cos)

@@ -1,0 +1,194 @@
+"""Daylight room: sun through a window and a uniform sky, PDIC Final against Cycles, texel by texel.
+
+    .venv/bin/python bench/daylight_room.py [--density 16] [--spp 1024] [--bounces 32] [--out DIR]
+
+Every other bench scene is lit by lamps inside it; an interior lit by daylight through a window is
+what most architectural and game light maps hold. One mesh object (a 6 x 5 x 3 m room with 0.2 m
+walls, a 2 x 1.3 m window in the south wall, a table, a 2 cm shelf), one Diffuse BSDF of albedo
+ALBEDO, a sun (SUN_STRENGTH, 35 degrees up, shining in through the window) and a uniform grey world
+(WORLD_STRENGTH). PDIC bakes Final at its defaults through the add-on's ``BakeJob`` at ``--density``
+texels per metre; Cycles bakes Diffuse Direct and Diffuse Indirect (no Color, adaptive sampling off,
+``--bounces`` diffuse bounces, sample clamping off) into the same ``PDIC_Lightmap`` UVs twice with
+seeds 1 and 2, cached in ``--out``: their mean is the reference and their difference its noise,
+which is subtracted (bench/competitors.py ``errors``). Prints, for the direct and the indirect light,
+the noise-corrected relative RMSE per texel and on 8x8 blocks over all texels both baked and over
+the room's inside (texels whose normal faces into the room from inside it), and the mean ratio.
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+for path in (ROOT, ROOT / "tests"):
+    if str(path) not in sys.path:
+        sys.path.insert(0, str(path))
+import pdic_bootstrap  # noqa: E402
+
+pdic_bootstrap.load()
+import bpy  # noqa: E402
+
+import cycles_reference as cr  # noqa: E402
+from bench.competitors import errors, texel_geometry  # noqa: E402
+from test_cathedral_direct_vs_cycles import _diffuse_material  # noqa: E402
+from pdic import pdic_addon  # noqa: E402
+from pdic.pdic_addon import job as job_module  # noqa: E402
+from pdic.pdic_addon import writeback  # noqa: E402
+from pdic.pdic_addon.properties import to_settings  # noqa: E402
+from pdic.pdic_addon.uvmaps import LIGHTMAP_UV  # noqa: E402
+
+ALBEDO = 0.7
+SUN_STRENGTH = 3.0
+"""W/m^2 of the sun (Blender's Strength): a floor facing it straight gets E = 3."""
+SUN_ELEVATION = math.radians(35.0)
+WORLD_STRENGTH = 0.5
+"""A uniform grey sky: E = pi x 0.5 on an open upward face."""
+ROOM = (6.0, 5.0, 3.0)
+WALL = 0.2
+WINDOW = ((2.0, 4.0), (0.9, 2.2))
+"""The window's x and z extent in the south wall (y = 0)."""
+
+
+def boxes() -> list:
+    """The room as axis-aligned boxes ((x0, y0, z0), (x1, y1, z1)): shell, window wall, table, shelf."""
+    L, W, H, t = *ROOM, WALL
+    (wx0, wx1), (wz0, wz1) = WINDOW
+    shell = [((-t, -t, -t), (L + t, W + t, 0)), ((-t, -t, H), (L + t, W + t, H + t)),
+             ((-t, -t, 0), (0, W + t, H)), ((L, -t, 0), (L + t, W + t, H)), ((0, W, 0), (L, W + t, H))]
+    south = [((0, -t, 0), (wx0, 0, H)), ((wx1, -t, 0), (L, 0, H)),
+             ((wx0, -t, 0), (wx1, 0, wz0)), ((wx0, -t, wz1), (wx1, 0, H))]
+    table = [((2.4, 2.4, 0.72), (3.6, 3.2, 0.76))] + [
+        ((x, y, 0), (x + 0.05, y + 0.05, 0.72)) for x in (2.45, 3.5) for y in (2.45, 3.1)]
+    shelf = [((L - 0.3, 1.5, 1.5), (L, 3.0, 1.52))]
+    return shell + south + table + shelf
+
+
+def build() -> bpy.types.Object:
+    """A factory-fresh file with the room as one object, the sun and the sky; returns the object."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    world = bpy.data.worlds.new("Sky")
+    background = world.node_tree.nodes["Background"]
+    background.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    background.inputs["Strength"].default_value = WORLD_STRENGTH
+    bpy.context.scene.world = world
+    verts, faces = [], []
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    for lo, hi in boxes():
+        base = len(verts)
+        verts += [(hi[0] if i & 4 else lo[0], hi[1] if i & 2 else lo[1], hi[2] if i & 1 else lo[2]) for i in range(8)]
+        faces += [tuple(base + k for k in q) for q in quads]
+    mesh = bpy.data.meshes.new("Room")
+    mesh.from_pydata(verts, [], faces)
+    import bmesh
+    bm = bmesh.new()
+    bm.from_mesh(mesh)
+    bmesh.ops.recalc_face_normals(bm, faces=bm.faces)  # outward from each box
+    bm.to_mesh(mesh)
+    bm.free()
+    mesh.materials.append(_diffuse_material(bpy, "Plaster", ALBEDO))
+    ob = bpy.data.objects.new("Room", mesh)
+    bpy.context.scene.collection.objects.link(ob)
+    sun = bpy.data.lights.new("Sun", "SUN")
+    sun.energy = SUN_STRENGTH
+    sun.angle = 0.0
+    sun_ob = bpy.data.objects.new("Sun", sun)
+    # A sun shines along its -Z: tilted about X by 90 - elevation it points north (+y) and down.
+    sun_ob.rotation_euler = (math.pi / 2 - SUN_ELEVATION, 0.0, 0.0)
+    bpy.context.scene.collection.objects.link(sun_ob)
+    bpy.context.view_layer.update()
+    return ob
+
+
+def digest(ob) -> str:
+    """8 hex digits of the room as Cycles sees it (mesh, albedo, lights): a cached reference is for it only."""
+    mesh = ob.data
+    co = np.empty(len(mesh.vertices) * 3, np.float64)
+    mesh.vertices.foreach_get("co", co)
+    h = hashlib.sha1(co.tobytes())
+    h.update(repr((ALBEDO, SUN_STRENGTH, SUN_ELEVATION, WORLD_STRENGTH)).encode())
+    return h.hexdigest()[:8]
+
+
+def inside_room(position: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """(H, W) bool: texels on the room's inside surfaces (within the room's box, facing into it)."""
+    lo, hi = np.zeros(3) - 1e-3, np.array(ROOM) + 1e-3
+    within = np.all((position >= lo) & (position <= hi), axis=-1)
+    centre = np.array(ROOM) / 2
+    return within & (np.einsum("hwj,hwj->hw", centre - position, normal) > 0)
+
+
+def reference(ob, W: int, H: int, passes: str, spp: int, bounces: int, folder: Path) -> tuple:
+    """The seed-1 and seed-2 Cycles bakes of one pass, cached in ``folder``."""
+    cached = folder / f"reference_{digest(ob)}_{passes}_{W}x{H}_{spp}spp_{bounces}b.npz"
+    if cached.exists():
+        with np.load(cached) as f:
+            return f["C1"], f["C2"], float(f["seconds"])
+    pair, seconds = [], 0.0
+    for seed in (1, 2):
+        t = time.perf_counter()
+        ref = cr.cycles_bake_full([ob], LIGHTMAP_UV, W, H, {passes}, spp, seed=seed, diffuse_bounces=bounces,
+                                  clamp_indirect=0.0)
+        seconds += time.perf_counter() - t
+        pair.append(ref.images[ob.name][..., :3])
+    np.savez_compressed(cached, C1=pair[0], C2=pair[1], seconds=seconds)
+    return pair[0], pair[1], seconds
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--density", type=float, default=16.0, help="texels per metre")
+    ap.add_argument("--spp", type=int, default=1024)
+    ap.add_argument("--bounces", type=int, default=32)
+    ap.add_argument("--threads", type=int, default=0)
+    ap.add_argument("--seed", type=int, default=0, help="PDIC's seed")
+    ap.add_argument("--out", default="/tmp/pdic_daylight_room")
+    args = ap.parse_args(argv)
+    folder = Path(args.out)
+    folder.mkdir(parents=True, exist_ok=True)
+    pdic_addon.register()
+    ob = build()
+    props = bpy.context.scene.pdic
+    props.quality = "FINAL"
+    props.texel_density = args.density
+    props.seed = args.seed
+    props.image_format = "EXR_FLOAT"
+    settings = to_settings(props, threads=args.threads)
+    t, cpu = time.perf_counter(), time.process_time()
+    job = job_module.BakeJob(bpy.context, settings, output_folder=str(folder / "maps"),
+                             cache_dir=folder / "unwrap_cache")
+    job.run()
+    wall, cpu = time.perf_counter() - t, time.process_time() - cpu
+    result = job.result
+    writeback.set_shading([ob], baked=False)  # Cycles must bake the room's own material, not the light map
+    name = ob.name
+    H, W = result.indirect[name].shape[:2]
+    position, normal, centre = texel_geometry(job.extraction.scene)
+    room = inside_room(position + job.extraction.scene.origin_world, normal)
+    counters = result.stats["counters"]
+    print(f"daylight room: {len(ob.data.polygons):,} faces, map {W}x{H} at {args.density:g} texels/m; PDIC Final "
+          f"{wall:.1f} s wall, {cpu:.1f} CPU s (unwrap included), photons emitted {counters.get('photons_emitted'):,}, "
+          f"stored {counters.get('photons_stored'):,}, records {counters.get('records_total'):,}")
+    for passes, image in (("DIRECT", result.direct[name]), ("INDIRECT", result.indirect[name])):
+        C1, C2, seconds = reference(ob, W, H, passes, args.spp, args.bounces, folder)
+        baked = (C1.sum(axis=2) > 0) | (C2.sum(axis=2) > 0)
+        baked &= centre & result.centre_inside[name]
+        err = errors(image, (C1, C2), baked, room)
+        mean = 0.5 * (C1 + C2)
+        noise = np.sqrt(np.mean((C1 - C2)[baked] ** 2) / 2) / max(float(mean[baked].mean()), 1e-30)
+        inside = baked & room
+        ratio_in = float(image[inside].sum() / max(mean[inside].sum(), 1e-30))
+        print(f"{passes.lower():8s} Cycles {args.spp} spp x 2 ({seconds:.0f} s), its noise per texel {noise:.2%}; "
+              f"all texels {err['texel']:.2%} / 8x8 {err['block']:.2%}, mean {err['mean_ratio']:.4f}; "
+              f"room's inside {err['texel_interior']:.2%} / {err['block_interior']:.2%}, mean {ratio_in:.4f}")
+    np.savez_compressed(folder / f"pdic_seed{args.seed}.npz", direct=result.direct[name],
+                        indirect=result.indirect[name], room=room, centre=centre)
+
+
+if __name__ == "__main__":
+    main()
