@@ -245,13 +245,8 @@ HIT_GRID_MAX_SIDE = 256
 """Most grid steps along a triangle's edge (65k cells per side)."""
 HIT_GRID_MAX_CELLS = 4_000_000
 """The step widens until the whole grid holds at most this many cells (84 bytes each)."""
-HIT_GRID_CELLS_PER_HIT = 0.25
-"""... and at most this many cells (both sides) per gathering hit expected (records x cells). Where
-this binds (scenes of few records over much surface) the cells grow: at 0.125 a daylight room
-(bench/daylight_room.py, 56k cells of ~25 cm) read its cells' E 2 % below the hits' own and baked
-its inside indirect light 3.8 % dark against Cycles; at 0.25 (87k cells) 2.2 %, at 0.5 2.1 %.
-Sponza's grid is bound by HIT_GRID_SPACING instead; the occluded building and the Cornell box bake
-at the same error and CPU time (within their run-to-run spread)."""
+HIT_GRID_CELLS_PER_HIT = 0.125
+"""... and at most this many cells (both sides) per gathering hit expected (records x cells)."""
 HIT_GRID_NEAR = 1.0
 """A gathering hit nearer to its record than this times its distance from its grid cell's centroid is
 shaded on its own (core/real_rays.py): the cell would stand for much of the record's hemisphere."""
