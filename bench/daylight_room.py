@@ -20,6 +20,7 @@ import argparse
 import hashlib
 import math
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -69,8 +70,11 @@ def boxes() -> list:
     return shell + south + table + shelf
 
 
-def build() -> bpy.types.Object:
-    """A factory-fresh file with the room as one object, the sun and the sky; returns the object."""
+def build(sun_angle: float = 0.0, lamp: float = 0.0) -> bpy.types.Object:
+    """A factory-fresh file with the room as one object, the sun and the sky; returns the object.
+
+    sun_angle : the sun's angular diameter, degrees (0: hard shadows). lamp : watts of a point light
+    of Blender's default radius (0.1 m) hanging 0.6 m under the ceiling over the table; 0: none."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     world = bpy.data.worlds.new("Sky")
     background = world.node_tree.nodes["Background"]
@@ -96,11 +100,18 @@ def build() -> bpy.types.Object:
     bpy.context.scene.collection.objects.link(ob)
     sun = bpy.data.lights.new("Sun", "SUN")
     sun.energy = SUN_STRENGTH
-    sun.angle = 0.0
+    sun.angle = math.radians(sun_angle)
     sun_ob = bpy.data.objects.new("Sun", sun)
     # A sun shines along its -Z: tilted about X by 90 - elevation it points north (+y) and down.
     sun_ob.rotation_euler = (math.pi / 2 - SUN_ELEVATION, 0.0, 0.0)
     bpy.context.scene.collection.objects.link(sun_ob)
+    if lamp > 0:
+        light = bpy.data.lights.new("Lamp", "POINT")
+        light.energy = lamp
+        light.shadow_soft_size = 0.1
+        lamp_ob = bpy.data.objects.new("Lamp", light)
+        lamp_ob.location = (3.0, 2.8, ROOM[2] - 0.6)
+        bpy.context.scene.collection.objects.link(lamp_ob)
     bpy.context.view_layer.update()
     return ob
 
@@ -111,7 +122,10 @@ def digest(ob) -> str:
     co = np.empty(len(mesh.vertices) * 3, np.float64)
     mesh.vertices.foreach_get("co", co)
     h = hashlib.sha1(co.tobytes())
-    h.update(repr((ALBEDO, SUN_STRENGTH, SUN_ELEVATION, WORLD_STRENGTH)).encode())
+    lights = sorted((o.name, o.data.type, o.data.energy, getattr(o.data, "angle", 0.0),
+                     getattr(o.data, "shadow_soft_size", 0.0), tuple(o.location)) for o in bpy.data.objects
+                    if o.type == "LIGHT")
+    h.update(repr((ALBEDO, SUN_STRENGTH, SUN_ELEVATION, WORLD_STRENGTH, lights)).encode())
     return h.hexdigest()[:8]
 
 
@@ -147,12 +161,14 @@ def main(argv=None):
     ap.add_argument("--bounces", type=int, default=32)
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--seed", type=int, default=0, help="PDIC's seed")
+    ap.add_argument("--sun-angle", type=float, default=0.0, help="the sun's angular diameter, degrees")
+    ap.add_argument("--lamp", type=float, default=0.0, help="watts of a soft point light over the table")
     ap.add_argument("--out", default="/tmp/pdic_daylight_room")
     args = ap.parse_args(argv)
     folder = Path(args.out)
     folder.mkdir(parents=True, exist_ok=True)
     pdic_addon.register()
-    ob = build()
+    ob = build(args.sun_angle, args.lamp)
     props = bpy.context.scene.pdic
     props.quality = "FINAL"
     props.texel_density = args.density
@@ -162,7 +178,9 @@ def main(argv=None):
     t, cpu = time.perf_counter(), time.process_time()
     job = job_module.BakeJob(bpy.context, settings, output_folder=str(folder / "maps"),
                              cache_dir=folder / "unwrap_cache")
-    job.run()
+    with tempfile.TemporaryDirectory() as fresh:
+        job.bake_cache_dir = Path(fresh)  # a bake, not the add-on's bake cache from an earlier run
+        job.run()
     wall, cpu = time.perf_counter() - t, time.process_time() - cpu
     result = job.result
     writeback.set_shading([ob], baked=False)  # Cycles must bake the room's own material, not the light map

@@ -7,9 +7,10 @@ points alias there: a texel reads 0, 1/4, ..., 1 whatever the edge's position (C
 direct light alone: 13.0 % per texel against Cycles). Here, after direct light at the regular samples:
 
 1. **Edge texels** (:func:`edge_texels`): a texel whose samples' lit shares (from the edge
-   evidence, :func:`core.direct.edge_evidence`: independent of the light they keep) disagree by more than ``DIRECT_EDGE_CONTRAST`` (where the samples' hull is narrower than the
-   footprint, also one whose mean lit share differs that much from a 4-neighbour's on the same
-   surface, centroids within ``DIRECT_NEIGHBOUR_TEXELS`` texel sizes).
+   evidence, :func:`core.direct.edge_evidence`: independent of the light they keep) disagree by
+   more than ``DIRECT_EDGE_CONTRAST`` (where the samples' hull is narrower than the footprint, also
+   one whose mean lit share differs that much from a 4-neighbour's on the same surface, centroids
+   within ``DIRECT_NEIGHBOUR_TEXELS`` texel sizes).
 2. **Footprint**: ``DIRECT_FOOTPRINT_PER_AXIS``^2 stratified jittered points over each edge texel's
    footprint (the centred square of ``direct_footprint_side`` texels that Cycles bakes),
    on the triangles that cover it (:func:`core.texels.footprint_texel_points`); soft emitters take
