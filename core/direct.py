@@ -134,7 +134,7 @@ def edge_evidence(out: DirectResult, caster: RayCaster, p, n_s, n_g, emitter, sh
 
     The evidence must not be the estimate E keeps: a texel judged on its own noisy samples is
     re-integrated when they came out unequal and keeps them when they came out equal, which for a
-    soft emitter mostly hidden (the sky through a window: a room's walls read 0.80 of Cycles) keeps
+    soft emitter mostly hidden (the sky through a window: a room's walls read 0.86 of Cycles) keeps
     the unlucky zeros and redraws the lucky hits. So an exact emitter (``shadow.exact``: its one ray
     is its visibility) gives its own samples ``vis`` (k, m); a soft one, one ray per point drawn from
     ``rng``; the world none: its light has no edge, a wall's foot darkens it smoothly.
