@@ -57,6 +57,8 @@ def parse_args(args: list[str]) -> argparse.Namespace:
     p.add_argument("--passes", default=None, help="comma-separated: direct,indirect (default: the scene's)")
     p.add_argument("--quality", type=str.upper, choices=("PREVIEW", "FINAL", "CUSTOM"))
     p.add_argument("--photons", type=int)
+    p.add_argument("--direct-samples", type=int, metavar="N",
+                   help="shadow rays per texel sample toward each soft light (the sky, area lights)")
     p.add_argument("--seed", type=int)
     p.add_argument("--threads", type=int, help="worker threads (0 = all cores)")
     p.add_argument("--scheduler", metavar="ADDRESS",
@@ -76,7 +78,7 @@ def parse_args(args: list[str]) -> argparse.Namespace:
     if ns.texel_density is not None and not (ns.texel_density > 0 and math.isfinite(ns.texel_density)):
         p.error(f"--texel-density {ns.texel_density}: must be a positive finite number of texels per unit")
     for option, value, least in (("--photons", ns.photons, 0), ("--seed", ns.seed, 0), ("--threads", ns.threads, 0),
-                                 ("--preview-width", ns.preview_width, 8)):
+                                 ("--preview-width", ns.preview_width, 8), ("--direct-samples", ns.direct_samples, 1)):
         if value is not None and value < least:
             p.error(f"{option} {value}: must be at least {least}")
     if ns.scheduler is not None and not scheduler_address_ok(ns.scheduler):
@@ -137,6 +139,8 @@ def build_settings(pdic, props, args):
     overrides = {}
     if args.photons is not None:
         overrides["photons"] = args.photons
+    if args.direct_samples is not None:
+        overrides["direct_samples"] = args.direct_samples
     if args.seed is not None:
         overrides["seed"] = args.seed
     if args.threads is not None:

@@ -177,6 +177,7 @@ def draw_custom_settings(layout, props) -> None:
     col = layout.column(align=True)
     col.prop(props, "hemisphere_theta")
     col.prop(props, "hemisphere_phi", text="Columns")
+    layout.column(align=True).prop(props, "direct_samples")
 
 
 def draw_light_map_settings(layout, props) -> None:

@@ -92,6 +92,14 @@ def test_headless_bake_writes_images_manifest_and_preview(scene_blend, tmp_path)
     assert image[40, 48].mean() > image[0, 0].mean() + 20
 
 
+def test_direct_samples_option_reaches_the_bake(scene_blend, tmp_path):
+    """--direct-samples sets the shadow rays per sample toward soft lights: the manifest records it."""
+    out = tmp_path / "maps"
+    r = run("--blend", scene_blend(), "--output", out, *FAST, "--direct-samples", "3")
+    assert r.returncode == 0, r.stderr
+    assert manifest.read_manifest(out)["settings"]["direct_samples"] == 3
+
+
 def test_save_blend_keeps_light_maps_linked_to_uv_map(scene_blend, tmp_path, blender):
     blend = scene_blend()
     saved = tmp_path / "baked.blend"
@@ -160,7 +168,8 @@ def test_save_blend_never_overwrites_the_input(scene_blend, tmp_path, how):
 
 
 @pytest.mark.parametrize("option, value", [("--seed", "-1"), ("--threads", "-1"), ("--photons", "-1"),
-                                           ("--texel-density", "inf"), ("--texel-density", "nan")])
+                                           ("--texel-density", "inf"), ("--texel-density", "nan"),
+                                           ("--direct-samples", "0")])
 def test_bad_numbers_exit_2_naming_the_option(option, value):
     args = [a for a in FAST if a not in ("--resolution", "32")] if option == "--texel-density" else FAST
     r = run(*args, option, value)

@@ -283,7 +283,7 @@ def test_preferences_register_under_the_root_package():
 def test_custom_settings_are_drawn_only_for_custom_quality(addon, blender):
     build_scene(blender)
     props = blender.context.scene.pdic
-    custom_only = {"photons", "max_bounces", "a", "hemisphere_theta", "hemisphere_phi"}
+    custom_only = {"photons", "max_bounces", "a", "hemisphere_theta", "hemisphere_phi", "direct_samples"}
     always = {"texel_density", "default_resolution", "direct", "indirect", "seed"}
     for quality in ("PREVIEW", "FINAL", "CUSTOM"):
         props.quality = quality
