@@ -218,7 +218,10 @@ def shade_direct(scene: Scene, caster: RayCaster, p: np.ndarray, n_shading: np.n
         edge_rng = np.random.default_rng([*prefix, index, STREAM_DIRECT_EDGE]) if whole else None
         return direct_irradiance(scene, serial, p[s], n_shading[s], n_geometric[s], samples, rng, edge_rng)
 
-    merged = DirectResult.concatenate(executor.map_chunks(run, slices(len(p), TEXEL_CHUNK), progress))
+    # A chunk's arrays hold points x samples rays: past 16 samples the chunks shrink to keep them the size
+    # they are at 16 (256 samples at full chunks would need ~3 GB on two workers).
+    chunk = max(1, TEXEL_CHUNK * 16 // max(int(samples), 16))
+    merged = DirectResult.concatenate(executor.map_chunks(run, slices(len(p), chunk), progress))
     counters = {f"shadow_rays_{k}": v for k, v in merged.shadow_rays.items()}
     counters["shadow_rays"] = sum(merged.shadow_rays.values())
     counters["shadow_rays_skipped_points"] = sum(merged.skipped.values())

@@ -67,7 +67,7 @@ class PDIC_SceneSettings(bpy.types.PropertyGroup):
                                 description="Phi columns of the stratified hemisphere used to refine records "
                                             "(pass 3, Custom quality). Typical 2x the rows")
     direct_samples: IntProperty(name="Direct Samples", default=DEFAULTS.direct_samples, min=1, soft_max=256,
-                                max=4096,
+                                max=1024,
                                 description="Shadow rays per texel sample toward each soft light: area lights, "
                                             "a sun or lamp with a size, emissive meshes, the sky (Custom "
                                             "quality). Raise it where the sky is seen through windows: its "
