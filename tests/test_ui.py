@@ -206,7 +206,7 @@ def test_settings_survive_save_and_reload(addon, blender, tmp_path):
     build_scene(blender)
     props = blender.context.scene.pdic
     changed = dict(quality="PREVIEW", photons=123_456, max_bounces=9, density_control=48, a=0.25, hemisphere_theta=7,
-                   hemisphere_phi=15, texel_density=12.5, default_resolution=64, atlas_size=1024, direct=False, indirect=True,
+                   hemisphere_phi=15, direct_samples=40, texel_density=12.5, default_resolution=64, atlas_size=1024, direct=False, indirect=True,
                    seed=42, output_folder="//maps/", image_format="EXR_FLOAT", show_records=True,
                    show_record_discs=True, record_point_size=7.0, last_stats='{"x": 1}',
                    manifest_file="//maps/pdic_manifest.json", records_file="//maps/pdic_records.npz")
