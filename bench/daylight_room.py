@@ -36,6 +36,7 @@ pdic_bootstrap.load()
 import bpy  # noqa: E402
 
 import cycles_reference as cr  # noqa: E402
+from bench.scenes import boxes_mesh  # noqa: E402
 from bench.competitors import errors, texel_geometry  # noqa: E402
 from test_cathedral_direct_vs_cycles import _diffuse_material  # noqa: E402
 from pdic import pdic_addon  # noqa: E402
@@ -81,20 +82,7 @@ def build(sun_angle: float = 0.0, lamp: float = 0.0) -> bpy.types.Object:
     background.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
     background.inputs["Strength"].default_value = WORLD_STRENGTH
     bpy.context.scene.world = world
-    verts, faces = [], []
-    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
-    for lo, hi in boxes():
-        base = len(verts)
-        verts += [(hi[0] if i & 4 else lo[0], hi[1] if i & 2 else lo[1], hi[2] if i & 1 else lo[2]) for i in range(8)]
-        faces += [tuple(base + k for k in q) for q in quads]
-    mesh = bpy.data.meshes.new("Room")
-    mesh.from_pydata(verts, [], faces)
-    import bmesh
-    bm = bmesh.new()
-    bm.from_mesh(mesh)
-    bmesh.ops.recalc_face_normals(bm, faces=bm.faces)  # outward from each box
-    bm.to_mesh(mesh)
-    bm.free()
+    mesh = boxes_mesh("Room", boxes())
     mesh.materials.append(_diffuse_material(bpy, "Plaster", ALBEDO))
     ob = bpy.data.objects.new("Room", mesh)
     bpy.context.scene.collection.objects.link(ob)

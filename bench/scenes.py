@@ -19,8 +19,8 @@ from tests.blend_scenes import SPONZA, SPONZA_LIGHTS, SPONZA_POWER_W, load_corne
 
 
 # --------------------------------------------------------------------------- generated building
-def _boxes_object(name: str, boxes: list, colour) -> bpy.types.Object:
-    """One mesh object made of axis-aligned boxes ((x0, y0, z0), (x1, y1, z1)), outward faces."""
+def boxes_mesh(name: str, boxes: list) -> bpy.types.Mesh:
+    """A mesh of axis-aligned boxes ((x0, y0, z0), (x1, y1, z1)), every face facing out of its box."""
     verts, faces = [], []
     quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
     for lo, hi in boxes:
@@ -38,6 +38,12 @@ def _boxes_object(name: str, boxes: list, colour) -> bpy.types.Object:
     bmesh.ops.recalc_face_normals(bm, faces=bm.faces)
     bm.to_mesh(mesh)
     bm.free()
+    return mesh
+
+
+def _boxes_object(name: str, boxes: list, colour) -> bpy.types.Object:
+    """One mesh object made of axis-aligned boxes (:func:`boxes_mesh`) with a Principled BSDF of ``colour``."""
+    mesh = boxes_mesh(name, boxes)
     mat = bpy.data.materials.new(name + "Mat")
     mat.use_nodes = True
     mat.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (*colour, 1.0)
