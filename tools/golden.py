@@ -52,6 +52,7 @@ def sample_scene(name: str):
 
 def generated_scene(name: str, work: Path, **settings):
     objects = bench_scenes.load_sponza() if name == "sponza" else bench_scenes.load_occluded()
+    bpy.context.view_layer.update()  # after a sample blend was open, the new objects reach the view layer here
     _, scene = bench_scenes.prepare(objects, preset("FINAL", min_resolution=8, **settings), work / name)
     return scene
 
