@@ -1,6 +1,7 @@
 """Daylight room: sun through a window and a uniform sky, PDIC Final against Cycles, texel by texel.
 
     .venv/bin/python bench/daylight_room.py [--density 16] [--spp 1024] [--bounces 32] [--out DIR]
+        [--direct-samples 16] [--deviations sky_gathering=0]
 
 Every other bench scene is lit by lamps inside it; an interior lit by daylight through a window is
 what most architectural and game light maps hold. One mesh object (a 6 x 5 x 3 m room with 0.2 m
@@ -22,6 +23,7 @@ import math
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +40,7 @@ import bpy  # noqa: E402
 import cycles_reference as cr  # noqa: E402
 from bench.scenes import boxes_mesh  # noqa: E402
 from bench.competitors import errors, texel_geometry  # noqa: E402
+from bench.run import with_deviations  # noqa: E402
 from test_cathedral_direct_vs_cycles import _diffuse_material  # noqa: E402
 from pdic import pdic_addon  # noqa: E402
 from pdic.pdic_addon import job as job_module  # noqa: E402
@@ -151,6 +154,8 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0, help="PDIC's seed")
     ap.add_argument("--sun-angle", type=float, default=0.0, help="the sun's angular diameter, degrees")
     ap.add_argument("--lamp", type=float, default=0.0, help="watts of a soft point light over the table")
+    ap.add_argument("--direct-samples", type=int, default=0, help="PDIC's Direct Samples (0: the preset's)")
+    ap.add_argument("--deviations", default="", help="switches as bench/run.py's, e.g. sky_gathering=0")
     ap.add_argument("--out", default="/tmp/pdic_daylight_room")
     args = ap.parse_args(argv)
     folder = Path(args.out)
@@ -162,7 +167,9 @@ def main(argv=None):
     props.texel_density = args.density
     props.seed = args.seed
     props.image_format = "EXR_FLOAT"
-    settings = to_settings(props, threads=args.threads)
+    settings = with_deviations(to_settings(props, threads=args.threads), args.deviations)
+    if args.direct_samples:
+        settings = replace(settings, direct_samples=args.direct_samples)
     t, cpu = time.perf_counter(), time.process_time()
     job = job_module.BakeJob(bpy.context, settings, output_folder=str(folder / "maps"),
                              cache_dir=folder / "unwrap_cache")

@@ -16,16 +16,17 @@ from .vectors import norms
 class CellSums:
     """Running sums over B records x C cells (flat index record * C + cell).
 
-    L_sum, rot_sum : (B C, 3) weighted radiance and rotational-gradient axis (z x w) / cos.
+    L_sum, rot_sum : (B C, 3) weighted radiance and rotational-gradient axis (z x w) / cos; with the
+        sky gathered (deviation: sky-gathering) L_sum has 6 channels, the world's radiance in 3-5.
     count : (B C,) summed ray weights (rays per cell for real rays).
     r_min : (B C,) nearest hit distance per cell.
     inv_d_sum, inv_d_count : (B,) sums of 1 / distance and their counts (R_k's harmonic mean).
     """
 
-    def __init__(self, records: int, hemisphere: Hemisphere):
+    def __init__(self, records: int, hemisphere: Hemisphere, sky: bool = False):
         self.B, self.H = records, hemisphere
         size = records * hemisphere.cells
-        self.L_sum = np.zeros((size, 3))
+        self.L_sum = np.zeros((size, 6 if sky else 3))
         self.rot_sum = np.zeros((size, 3))
         self.count = np.zeros(size)
         self.r_min = np.full(size, np.inf)
@@ -74,7 +75,12 @@ class CellSums:
 
     def add_real_radiance(self, cell: np.ndarray, L: np.ndarray):
         """Add (h, 3) radiance to the distinct cells of real rays already counted by :meth:`add_real_rays`."""
-        self.L_sum[cell] += L
+        self.L_sum[cell, :3] += L
+
+    def add_sky(self, cell: np.ndarray, L_world: np.ndarray):
+        """The world's radiance L_world (3,) into the sky channels of the distinct cells whose real ray
+        escaped (deviation: sky-gathering)."""
+        self.L_sum[cell, 3:] += L_world
 
     def add_distances(self, inv_sum: np.ndarray, inv_n: np.ndarray):
         """Per-record sums (B,) of 1 / hit distance and hit counts."""
@@ -97,9 +103,10 @@ class CellSums:
         return self.H.cell_weight * np.sqrt(np.einsum("bjk,bjk->b", d, d))
 
     def irradiance_and_gradients(self, t1, t2, n, r_floor: float) -> tuple:
-        """(E (B, 3) >= 0, grad_r, grad_t (B, 3, 3) world, R (B,) harmonic mean hit distance)."""
+        """(E (B, c) >= 0, grad_r, grad_t (B, c, 3) world, R (B,) harmonic mean hit distance); c = 6 with
+        the sky's channels."""
         B, C = self.B, self.H.cells
-        L_cell = (self.L_sum / np.maximum(self.count, 1)[:, None]).reshape(B, C, 3)
+        L_cell = (self.L_sum / np.maximum(self.count, 1)[:, None]).reshape(B, C, -1)
         rot_cell = (self.rot_sum / np.maximum(self.count, 1)[:, None]).reshape(B, C, 3)
         # A hit at (nearly) zero distance would make the translational gradient overflow: no cell
         # is nearer than r_floor (gradient limiting then caps what is left).

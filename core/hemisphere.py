@@ -83,16 +83,17 @@ class Hemisphere:
                                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """E, rotational and translational gradients in the *local* frame from cell radiances.
 
-        L : (B, M*N, 3) cell radiances; r : (B, M*N) hit distances (> 0; inf for misses).
+        L : (B, M*N, c) cell radiances (c channels: RGB, or RGB twice with the sky's); r : (B, M*N) hit
+            distances (> 0; inf for misses).
         rot_axis : (B, M*N, 3) optional per-cell mean of (z x w) / cos(theta) over the
             cell's actual ray directions w; the cell centre's value when omitted.
             Near the horizon tan(theta) varies fast across a row, so the rays' own
             directions estimate the rotational gradient better than the centres.
-        Returns E (B, 3), grad_r (B, 3 channels, 3 local xyz), grad_t (B, 3, 3); z components are 0.
+        Returns E (B, c), grad_r (B, c channels, 3 local xyz), grad_t (B, c, 3); z components are 0.
         """
-        B = L.shape[0]
+        B, c = L.shape[0], L.shape[-1]
         M, N = self.rows, self.columns
-        L = L.reshape(B, M, N, 3)
+        L = L.reshape(B, M, N, c)
         r = np.maximum(r.reshape(B, M, N), 1e-300)
         E = self.cell_weight * L.sum(axis=(1, 2))
         theta_lo, theta_hi, theta_mid, phi_mid, phi_lo = self._angles()
@@ -106,9 +107,9 @@ class Hemisphere:
             rot = np.einsum("j,bjkc->bkc", np.tan(theta_mid), L)
             grad_r = self.cell_weight * (rot.transpose(0, 2, 1) @ v)
         else:
-            grad_r = self.cell_weight * (L.reshape(B, M * N, 3).transpose(0, 2, 1) @ rot_axis.reshape(B, M * N, 3))
+            grad_r = self.cell_weight * (L.reshape(B, M * N, c).transpose(0, 2, 1) @ rot_axis.reshape(B, M * N, 3))
         # Translational, theta boundaries (rows j-1 | j), j >= 1.
-        grad_t = np.zeros((B, 3, 3))
+        grad_t = np.zeros((B, c, 3))
         if M > 1:
             coef = np.sin(theta_lo[1:]) * np.cos(theta_lo[1:]) ** 2  # (M-1,)
             weight = (2 * np.pi / N) * coef[None, :, None] / np.minimum(r[:, 1:], r[:, :-1])  # (B, M-1, N)

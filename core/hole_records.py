@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 from .constants import FINE_ZONE_TEXELS, GAP_TEXELS, NEAREST_RECORDS, STREAM_HOLE_ORDER, STREAM_REFINE_HOLES
 from .density import PhotonDensity
 from .executor import Executor, Progress
-from .interpolation import interpolate
+from .interpolation import interpolate, texel_values
 from .irradiance_cache import CacheParameters, IrradianceCache, cache_for_holes
 from .refinement import GatherSources, refine_records
 from .settings import BakeSettings
@@ -34,9 +34,11 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
 
     target_index : the target's index in ``scene.targets``; points : its
     :class:`~core.texels.TexelPoints`; texel_size : world size of one texel.
-    sources : what refining hole records reads (Final quality), None for Preview.
+    sources : what refining hole records reads (Final quality), None for Preview. When its ``sky`` is
+        set (deviation: sky-gathering) E is (n, 6): the records' gathered sky follows in channels 3-5.
     """
-    E = np.zeros((len(points), 3))
+    sky = sources is not None and sources.sky is not None
+    E = np.zeros((len(points), 6 if sky else 3))
     if density is None or len(points) == 0:
         return E, IrradianceCache(), points.weight.astype(np.float64)
     inside, weights = sample_validity(scene, caster, density, target_index, points, texel_size, stream, params.R_min,
@@ -47,13 +49,13 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
         valid_points = points.take(valid)
         merged, sample_to_point = valid_points.per_texel()  # inside samples are not averaged in
         filled = fill_holes(scene, caster, density, sources, cache, merged, params, settings, executor, progress,
-                            texel_size)
+                            texel_size, sky)
         E[valid] = filled.E[sample_to_point]
         fine = _fine_samples(filled.smallest, sample_to_point, texel_size, settings)
         if len(fine):
             E_fine, w_fine = interpolate(filled.cache, params.a, settings.gradients, valid_points.p[fine],
                                          valid_points.n_shading[fine], executor, progress,
-                                         caster=_record_visibility(caster, params))
+                                         caster=_record_visibility(caster, params), sky=sky)
             covered = w_fine > 0
             E[valid[fine[covered]]] = E_fine[covered]
     stats.add(texel_points_interpolated=len(merged) + len(fine), texel_points_unfilled=filled.unfilled,
@@ -83,7 +85,8 @@ class FilledLookup:
     """Equation 3 at texel points over the cache and its hole records (what :func:`fill_holes` returns)."""
 
     E: np.ndarray
-    """(m, 3) float64 irradiance, W/m^2 (the nearest record's where no record accepts the point)."""
+    """(m, 3) float64 irradiance, W/m^2 (the nearest record's where no record accepts the point); (m, 6)
+    with the gathered sky (deviation: sky-gathering)."""
     w: np.ndarray
     """(m,) float64 Ward weight sums; 0 where no record accepts the point."""
     smallest: np.ndarray
@@ -110,11 +113,12 @@ def interpolate_filling_holes(scene, caster, density: PhotonDensity, sources: Ga
 
 def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | None, cache: IrradianceCache,
                points, params: CacheParameters, settings: BakeSettings, executor: Executor,
-               progress: Progress, texel_size: float = 0.0) -> FilledLookup:
+               progress: Progress, texel_size: float = 0.0, sky: bool = False) -> FilledLookup:
     """:func:`interpolate_filling_holes`, with the weights and smallest zones at every point.
 
     texel_size : world size of one texel; points no zone accepts first try zones widened by
     GAP_TEXELS of it (deviation: gap-fill; 0 skips that).
+    sky : interpolate the records' gathered sky too (E (m, 6), :attr:`core.interpolation.CacheLookup.sky`).
     Equation 3 runs once over all points and, after each round of hole records, again at the
     points that were holes (covered points keep the records they had; the smallest zones there
     leave hole records out).
@@ -123,7 +127,7 @@ def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | N
 
     def lookup(c, index, caster=seeing, margin=0.0):
         return interpolate(c, params.a, settings.gradients, points.p[index], points.n_shading[index], executor,
-                           progress, with_zone=True, caster=caster, margin=margin)
+                           progress, with_zone=True, caster=caster, margin=margin, sky=sky)
 
     E, w, smallest = lookup(cache, slice(None))
     hole_records, counters = 0, {}
@@ -151,7 +155,7 @@ def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | N
     unfilled = np.flatnonzero(w <= 0)
     if len(unfilled) and len(cache) and settings.deviations.nearest_record_fallback:
         # deviation: nearest-record-fallback, docs/DEVIATIONS.md (counted in the stats).
-        E[unfilled] = nearest_record(cache, points.p[unfilled], points.n_shading[unfilled], seeing)
+        E[unfilled] = nearest_record(cache, points.p[unfilled], points.n_shading[unfilled], seeing, sky)
     return FilledLookup(E, w, smallest, cache, hole_records, len(unfilled), counters)
 
 
@@ -171,16 +175,19 @@ def _hole_records(scene, caster, density, sources, cache, cand_p, cand_n, params
     return new, counters
 
 
-def nearest_record(cache: IrradianceCache, p: np.ndarray, n: np.ndarray, caster=None) -> np.ndarray:
+def nearest_record(cache: IrradianceCache, p: np.ndarray, n: np.ndarray, caster=None, sky: bool = False
+                   ) -> np.ndarray:
     """E (m, 3) of the nearest record to each point p, n (m, 3); with ``caster`` (deviation:
-    record-visibility) the nearest of the NEAREST_RECORDS nearest that sees the point, else 0."""
+    record-visibility) the nearest of the NEAREST_RECORDS nearest that sees the point, else 0.
+    sky : (m, 6), the record's gathered sky in channels 3-5."""
+    values = texel_values(cache, sky)[0]
     if caster is None:
         _, nearest = cKDTree(cache.p).query(p)
-        return cache.E[nearest]
+        return values[nearest]
     k = min(NEAREST_RECORDS, len(cache))
     _, nearest = cKDTree(cache.p).query(p, k=k)
     nearest = nearest.reshape(len(p), k)
     seen = ~caster.hidden_off_plane(np.repeat(p, k, axis=0), np.repeat(n, k, axis=0), cache.p[nearest.ravel()],
                                     cache.n[nearest.ravel()]).reshape(-1, k)
     first = nearest[np.arange(len(p)), np.argmax(seen, axis=1)]
-    return np.where(seen.any(axis=1)[:, None], cache.E[first], 0.0)
+    return np.where(seen.any(axis=1)[:, None], values[first], 0.0)

@@ -35,6 +35,9 @@ class CacheLookup:
     a R_k + margin and Equation 1's distance term uses R_k + margin / a; the normal term is unchanged.
     Past its own zone a record's walls are unknown, so there it counts only if it sees the point
     (one ray; needs ``caster``)."""
+    sky: bool = False
+    """Interpolate the records' gathered sky (deviation: sky-gathering) with their E_k, same weights:
+    E comes out (m, 6), the sky in channels 3-5. Needs a cache with E_sky."""
     zone: np.ndarray = field(init=False, repr=False)
     clearance: np.ndarray = field(init=False, repr=False)
     grid: ZoneGrid = field(init=False, repr=False)
@@ -43,6 +46,7 @@ class CacheLookup:
         self.zone = self.a * np.asarray(self.cache.R, dtype=np.float64) + self.margin
         self.clearance = wall_clearance(self.cache.wall)
         self.grid = ZoneGrid(self.cache.p, self.zone)
+        self.values = texel_values(self.cache, self.sky)
 
     def candidates(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(rows, records): every (point, record) pair with the point inside the record's zone,
@@ -52,8 +56,8 @@ class CacheLookup:
     def irradiance(self, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Equation 3 at points p (m, 3) with unit normals n (m, 3).
 
-        Returns (E (m, 3) float64 >= 0, w_sum (m,) float64); w_sum == 0 marks a hole
-        (no record accepted), where E is 0.
+        Returns (E (m, 3) float64 >= 0, or (m, 6) with :attr:`sky`, w_sum (m,) float64); w_sum == 0
+        marks a hole (no record accepted), where E is 0.
         """
         E, w_sum, _ = self._equation_3(p, n, with_zone=False)
         return E, w_sum
@@ -67,7 +71,8 @@ class CacheLookup:
 
     def _equation_3(self, p: np.ndarray, n: np.ndarray, with_zone: bool):
         m = len(p)
-        num = np.zeros((m, 3))
+        E_k, grad_r, grad_t = self.values
+        num = np.zeros((m, E_k.shape[1]))
         den = np.zeros(m)
         smallest = np.full(m, np.inf)
         c = self.cache
@@ -109,11 +114,11 @@ class CacheLookup:
                 # deviation: gap-fill: a gradient holds over its own zone; past it E_k stays as at its edge.
                 scale = np.minimum(1.0, own_zone[ok] / np.maximum(np.sqrt(d2[ok]), 1e-300))
                 p_at = p_k[ok] + delta[ok] * scale[:, None]
-            E_rec = record_estimate(c.E[rec], p_at, n_r[ok], p_k[ok], n_k[ok],
-                                    c.grad_r[rec] if self.use_gradients else None,
-                                    c.grad_t[rec] if self.use_gradients else None)
+            E_rec = record_estimate(E_k[rec], p_at, n_r[ok], p_k[ok], n_k[ok],
+                                    grad_r[rec] if self.use_gradients else None,
+                                    grad_t[rec] if self.use_gradients else None)
             E_rec = np.maximum(E_rec, 0.0)
-            for ch in range(3):
+            for ch in range(E_k.shape[1]):
                 num[:, ch] = np.bincount(rows, weights=w * E_rec[:, ch], minlength=m)
             den = np.bincount(rows, weights=w, minlength=m)
             if with_zone:
@@ -123,15 +128,16 @@ class CacheLookup:
 
 
 def interpolate(cache: IrradianceCache, a: float, gradients: bool, p: np.ndarray, n: np.ndarray, executor,
-                progress, with_zone: bool = False, caster=None, margin: float = 0.0) -> tuple:
+                progress, with_zone: bool = False, caster=None, margin: float = 0.0, sky: bool = False) -> tuple:
     """Equation 3 at points p, n (m, 3), chunked over the executor: (E (m, 3), w_sum (m,)), plus
     (m,) the smallest accepted zone radius ``with_zone`` (see :meth:`CacheLookup.irradiance_and_zone`).
+    sky : E (m, 6) with the records' gathered sky in channels 3-5 (see :attr:`CacheLookup.sky`).
 
     caster : a :class:`core.rays.RayCaster` (deviation: record-visibility, see :attr:`CacheLookup.caster`);
         its ``rays_cast`` counts the visibility rays.
     margin : zones widened by this distance (deviation: gap-fill, see :attr:`CacheLookup.margin`).
     """
-    lookup = CacheLookup(cache, a, gradients, margin=margin)
+    lookup = CacheLookup(cache, a, gradients, margin=margin, sky=sky)
 
     def run(index, s):
         chunk = copy.copy(lookup)  # shares the cache's arrays; a view of the BVH per chunk counts its own rays
@@ -145,5 +151,16 @@ def interpolate(cache: IrradianceCache, a: float, gradients: bool, p: np.ndarray
     if caster is not None:
         caster.rays_cast += sum(rays for _, rays in results)
     if not parts:
-        parts = [(np.zeros((0, 3)), np.zeros(0), np.zeros(0))[:3 if with_zone else 2]]
+        parts = [(np.zeros((0, 6 if sky else 3)), np.zeros(0), np.zeros(0))[:3 if with_zone else 2]]
     return tuple(np.concatenate([part[i] for part in parts]) for i in range(len(parts[0])))
+
+
+def texel_values(cache: IrradianceCache, sky: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(E_k (K, c), grad_r, grad_t (K, c, 3)) the records carry to a lookup: their indirect irradiance,
+    and with ``sky`` their gathered sky beside it (c = 6; deviation: sky-gathering)."""
+    if not sky:
+        return cache.E, cache.grad_r, cache.grad_t
+    if not cache.has_sky:
+        raise ValueError("CacheLookup(sky=True) needs records that gathered the sky (IrradianceCache.E_sky)")
+    return (np.concatenate([cache.E, cache.E_sky], axis=1), np.concatenate([cache.grad_r, cache.grad_r_sky], axis=1),
+            np.concatenate([cache.grad_t, cache.grad_t_sky], axis=1))

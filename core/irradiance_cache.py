@@ -78,7 +78,8 @@ CLAMP_NEIGHBOURS = 16
 
 @dataclass
 class IrradianceCache:
-    """Irradiance records, struct of arrays (K records; 8*(3+3+3+1+9+9) + 4 + 1 + 1 + 4*8 = 262 bytes each).
+    """Irradiance records, struct of arrays (K records; 8*(3+3+3+1+9+9) + 4 + 1 + 1 + 4*8 = 262 bytes each,
+    168 more with the gathered sky).
 
     p, n : (K, 3) float64 scene-local position and unit normal of each record.
     E : (K, 3) float64 indirect irradiance E_k, W/m^2.
@@ -101,6 +102,13 @@ class IrradianceCache:
     wall: np.ndarray | None = None
     """(K, WALL_RAYS) float32 distance to the nearest wall per azimuth sector of the record's
     tangent plane (inf: none within reach); None = no walls known (every sector open)."""
+    E_sky: np.ndarray | None = None
+    """(K, 3) float64 the world's irradiance gathered at each record (deviation: sky-gathering), W/m^2;
+    None when the sky is not gathered."""
+    grad_r_sky: np.ndarray | None = None
+    """(K, 3, 3) its rotational gradient, as grad_r; None with E_sky."""
+    grad_t_sky: np.ndarray | None = None
+    """(K, 3, 3) its translational gradient, as grad_t; None with E_sky."""
 
     def __post_init__(self):
         if self.wall is None:
@@ -109,12 +117,25 @@ class IrradianceCache:
     def __len__(self) -> int:
         return len(self.p)
 
+    @property
+    def has_sky(self) -> bool:
+        return self.E_sky is not None
+
     def extend(self, other: "IrradianceCache") -> "IrradianceCache":
-        return IrradianceCache(*(np.concatenate([getattr(self, f), getattr(other, f)])
-                                 for f in self.__dataclass_fields__))
+        def joined(f):
+            mine, theirs = getattr(self, f), getattr(other, f)
+            if mine is None and theirs is None:
+                return None
+            if mine is None or theirs is None:  # a sky field: records that gathered no sky have none
+                shape = (mine if mine is not None else theirs).shape[1:]
+                mine = np.zeros((len(self),) + shape) if mine is None else mine
+                theirs = np.zeros((len(other),) + shape) if theirs is None else theirs
+            return np.concatenate([mine, theirs])
+        return IrradianceCache(*(joined(f) for f in self.__dataclass_fields__))
 
     def take(self, index) -> "IrradianceCache":
-        return IrradianceCache(*(getattr(self, f)[index] for f in self.__dataclass_fields__))
+        return IrradianceCache(*(None if getattr(self, f) is None else getattr(self, f)[index]
+                                 for f in self.__dataclass_fields__))
 
 
 @dataclass(frozen=True)

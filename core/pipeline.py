@@ -41,8 +41,8 @@ from .irradiance_cache import CacheParameters, IrradianceCache, cache_from_photo
 from .lightmaps import write_lightmaps
 from .photons import PhotonLighting, PhotonMap, trace_pass
 from .rays import RayCaster
-from .refinement import gather_sources, light_photons, refine_records
-from .scene import Scene, SceneError
+from .refinement import gather_sources, gathered_sky, light_photons, refine_records
+from .scene import Scene, SceneError, World
 from .settings import BakeSettings
 from .stats import BakeStats
 from .validity import sample_validity
@@ -114,6 +114,7 @@ def _bake(run: "_Run") -> BakeResult:
     """The passes, in order."""
     _check_scene(run.scene)
     targets = rasterise_targets(run)
+    run.stats.set(sky_gathered=int(run.sky is not None))  # deviation: sky-gathering
     shade_direct_at_targets(run, targets)
     cache = photons = lighting = None
     if run.settings.indirect and run.settings.photons > 0:
@@ -143,6 +144,11 @@ class _Run:
     """Pass 2's photon kd-tree when this run built it (hole records reuse it: it costs seconds)."""
     hit_grid: HitGrid | None = None
     """Pass 3's hit grid when this run built it (the hole records' grid reuses its direct light)."""
+
+    @property
+    def sky(self) -> np.ndarray | None:
+        """The world's radiance when the records gather it for the direct light (deviation: sky-gathering)."""
+        return gathered_sky(self.scene, self.settings)
 
     def transport(self) -> str:
         """Hash of what light transport depends on (memo keys); empty without a cache to key."""
@@ -264,6 +270,8 @@ def shade_direct_at_targets(run: "_Run", targets: list[TargetTexels]) -> None:
     if not settings.direct:
         return
     shaded = []
+    # deviation: sky-gathering: the records bring the world's light (indirect_at_targets adds it)
+    lit = run.scene if run.sky is None else replace(run.scene, world=World())
 
     def shade(index: int, t: TargetTexels):
         if not shaded:
@@ -271,12 +279,12 @@ def shade_direct_at_targets(run: "_Run", targets: list[TargetTexels]) -> None:
         shaded.append(t)
         with stats.stage("direct"):
             p = t.points
-            direct, counters = shade_direct(run.scene, run.caster(), p.p, p.n_shading, p.n_geometric,
+            direct, counters = shade_direct(lit, run.caster(), p.p, p.n_shading, p.n_geometric,
                                             settings.direct_samples, settings.seed, (STREAM_DIRECT, t.stream),
                                             run.executor, run.progress, whole=True)
             E = direct.E
             if settings.deviations.direct_footprint:  # deviation: direct-footprint, docs/DEVIATIONS.md
-                E, more = footprint_direct(run.scene, run.caster(), index, p, t.raster, t.texel_size, direct,
+                E, more = footprint_direct(lit, run.caster(), index, p, t.raster, t.texel_size, direct,
                                            settings, t.stream, run.executor, run.progress)
                 counters.update(more)
         stats.add(**counters)
@@ -291,7 +299,7 @@ def _direct_key(run: "_Run", t: TargetTexels) -> str:
     """The bake cache's key of a target's direct light."""
     settings = run.settings
     return run.store.key("direct", run.transport(), t.key, settings.direct_samples, settings.seed,
-                         settings.deviations.direct_footprint, settings.direct_footprint_side)
+                         settings.deviations.direct_footprint, settings.direct_footprint_side, run.sky is not None)
 
 
 def validity_without_indirect(run: "_Run", targets: list[TargetTexels]) -> None:
@@ -375,7 +383,10 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
     shaded: list = []
     for index, t in enumerate(targets):  # rasterise_targets' list: scene.targets' order
         key = store.key("indirect", cache_key, t.key, settings.gradients, settings.direct_footprint_side)
-        t.E_indirect, t.holes, t.indirect_weight = store.memoise("indirect", key, lambda: texels(index, t))
+        E, t.holes, t.indirect_weight = store.memoise("indirect", key, lambda: texels(index, t))
+        t.E_indirect = E[:, :3]
+        if run.sky is not None:  # deviation: sky-gathering: the world's light belongs to the direct-light image
+            t.E_direct = t.E_direct + (E[:, 3:] if E.shape[1] > 3 else _sky_without_records(run, t))
     run.stats.set(targets_shaded_indirect=len(shaded))
     cache, photons, lighting = passes[0] if passes else (store.get("cache", cache_key) or (IrradianceCache(), None, None))
     run.stats.set(hole_records=int(sum(len(t.holes) for t in targets if t.holes is not None)))
@@ -384,6 +395,19 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
             cache = cache.extend(t.holes)
     run.stats.set(records_total=len(cache))
     return cache, photons, lighting
+
+
+def _sky_without_records(run: "_Run", t: TargetTexels) -> np.ndarray:
+    """(n, 3) the world's direct light at a target's samples by shadow rays, for a bake that was to gather
+    it with its records but has none (no photon stayed in the scene): what the direct stage left out."""
+    scene = run.scene
+    world_only = replace(scene, lights=(), materials=replace(scene.materials,
+                                                             emission=np.zeros_like(scene.materials.emission)))
+    p = t.points
+    E, counters = shade_direct(world_only, run.caster(), p.p, p.n_shading, p.n_geometric, run.settings.direct_samples,
+                               run.settings.seed, (STREAM_DIRECT, t.stream), run.executor, run.progress)
+    run.stats.add(**counters)
+    return E
 
 
 def build_cache(run: "_Run", photons: PhotonMap, params: CacheParameters
@@ -404,7 +428,7 @@ def build_cache(run: "_Run", photons: PhotonMap, params: CacheParameters
         lighting = light_photons(run.scene, run.caster(), photons, lighting, settings, run.executor, progress, stats)
         with stats.stage("refine"):
             sources, grid_counters = gather_sources(density, lighting, cache, params, settings, run.scene,
-                                                    run.caster(), run.executor, progress)
+                                                    run.caster(), run.executor, progress, sky=run.sky)
             progress.begin("Pass 3: refining records")
             cache, counters = refine_records(run.scene, run.caster(), sources, cache, zones, settings, params,
                                              run.executor, progress)
@@ -422,7 +446,7 @@ def _hole_sources(run: "_Run", entry, params: CacheParameters):
     sources = None
     if run.settings.refine:  # hole records' gathering reads indirect light from the refined cache
         sources, counters = gather_sources(density, lighting, cache, params, run.settings, run.scene, run.caster(),
-                                           run.executor, run.progress, use=1, direct_from=run.hit_grid)
+                                           run.executor, run.progress, use=1, direct_from=run.hit_grid, sky=run.sky)
         run.stats.add(**{f"holes_{key}": value for key, value in counters.items()})
     return density, sources
 

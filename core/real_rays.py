@@ -48,12 +48,14 @@ class RealHits:
                           ("cell", "triangle", "barycentric", "q", "direction", "t")))
 
 
-def trace_real(caster, frames, cells: np.ndarray, sums: CellSums, rng: np.random.Generator
-               ) -> tuple[RealHits, np.ndarray, np.ndarray]:
+def trace_real(caster, frames, cells: np.ndarray, sums: CellSums, rng: np.random.Generator,
+               sky: np.ndarray | None = None) -> tuple[RealHits, np.ndarray, np.ndarray]:
     """Cast one real ray through each given cell (flat record * C + cell, each at most once) into ``sums``.
 
     frames : (p_k, t1, t2, n) of the batch's records, each (B, 3). The rays' directions and
     distances enter ``sums`` now; their radiance once :func:`shade_real` has shaded the hits.
+    sky : the world's radiance (3,), which escaping rays bring to the sky channels (deviation:
+    sky-gathering), or None.
     Returns the hits and the per-record (B,) sums of 1 / hit distance and hit counts these rays added.
     """
     p_k, t1, t2, n = frames
@@ -67,6 +69,8 @@ def trace_real(caster, frames, cells: np.ndarray, sums: CellSums, rng: np.random
     origin = caster.offset_origins(np.take(p_k, rec, axis=0), n_rec, d_world)
     hits = caster.intersect(origin, d_world, unit=True)
     sums.add_real_rays(cells, w_local, hits.t)
+    if sky is not None:
+        sums.add_sky(cells[~hits.hit], sky)
     hit = np.flatnonzero(hits.hit)
     d_hit = np.take(d_world, hit, axis=0)
     found = RealHits(cells[hit], hits.triangle[hit], np.take(hits.barycentric, hit, axis=0),

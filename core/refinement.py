@@ -58,6 +58,8 @@ class GatherSources:
     hit_grid : irradiance over every triangle that hits read instead (deviation: hit-grid), or None.
     gap_reach : a R_min, scene units: a gap hit's walk bounces on while it stays this near (deviation:
         gap-gathering, :func:`core.real_rays.gap_irradiance`).
+    sky : the world's radiance (3,) that escaping gathering rays bring to the records' sky channels
+        (deviation: sky-gathering, :func:`gathered_sky`), or None.
     """
 
     density: PhotonDensity
@@ -67,25 +69,48 @@ class GatherSources:
     deviations: Deviations
     hit_grid: HitGrid | None = None
     gap_reach: float = 0.0
+    sky: np.ndarray | None = None
 
     @property
     def nearest_photon_fallback(self) -> bool:
         return self.deviations.nearest_photon_fallback
 
 
+def gathered_sky(scene, settings: BakeSettings) -> np.ndarray | None:
+    """The world's radiance (3,) when the records gather the sky for the direct-light image, else None.
+
+    deviation: sky-gathering, docs/DEVIATIONS.md. A uniform world is smooth light, as smooth as the
+    indirect light, and the records' gathering rays already see it where they escape: interpolated
+    with their own gradients it is as smooth as the indirect light, where 16 shadow rays per texel
+    sample toward a sky seen through a window are grain. Only when the bake refines records and
+    writes both direct and indirect light (the records exist and the texels take both), with standard
+    gathering (virtual rays carry no sky) and no transmissive triangle (a gathering ray stops at glass;
+    the texels' shadow rays pass it).
+    """
+    world = scene.world
+    if not (settings.deviations.sky_gathering and settings.refine and settings.direct and settings.indirect
+            and settings.photons > 0 and not settings.reuse_photon_paths and not world.is_black):
+        return None
+    transmission = scene.geometry.transmission
+    if transmission is not None and (transmission > 0).any():
+        return None
+    return np.asarray(world.radiance, np.float64).reshape(3)
+
+
 def gather_sources(density: PhotonDensity, lighting: PhotonLighting, records: IrradianceCache,
                    params: CacheParameters, settings: BakeSettings, scene=None, caster=None,
                    executor: Executor | None = None, progress: Progress | None = None, use: int = 0,
-                   direct_from: HitGrid | None = None) -> tuple[GatherSources, dict]:
+                   direct_from: HitGrid | None = None, sky: np.ndarray | None = None) -> tuple[GatherSources, dict]:
     """Pass 3's read-only inputs: records interpolated at hits, radiance leaving each photon, and
     (deviation: hit-grid, given the scene) the grid of irradiance hits read; plus its counters.
 
     use : 0 for pass 3, 1 for the hole records (the random stream of the grid's shadow rays).
     direct_from : pass 3's grid, whose direct light the hole records' grid reuses.
+    sky : :attr:`GatherSources.sky`.
     """
     radiance_out = lighting.radiance_out(density.photons.albedo) if settings.reuse_photon_paths else None
     sources = GatherSources(density, lighting, CacheLookup(records, params.a, use_gradients=False), radiance_out,
-                            settings.deviations, gap_reach=params.a * params.R_min)
+                            settings.deviations, gap_reach=params.a * params.R_min, sky=sky)
     if not settings.deviations.hit_grid or scene is None:
         return sources, {}
     if progress is not None:
@@ -141,7 +166,7 @@ def refine_records(scene, caster, sources: GatherSources, cache: IrradianceCache
 
     batches = slices(K, RECORD_BATCH)
     results = executor.map_chunks(run, batches, progress)
-    gathers = Gathers(K)
+    gathers = Gathers(K, 3 if sources.sky is None else 6)
     counters = {key: 0 for key in COUNTERS}
     for s, r in zip(batches, results):
         gathers.add(s, r, counters)
@@ -159,7 +184,7 @@ def refine_records(scene, caster, sources: GatherSources, cache: IrradianceCache
             gathers.add(noisy[s], r, counters)
         counters["refine_extra_gathers"] += len(noisy)
     refined = cache.take(slice(None))
-    refined.E, refined.grad_r, refined.grad_t, R = gathers.means()
+    E, grad_r, grad_t, R = gathers.means()
     refined.refined[:] = True
     counters["refine_wall_rays"] = 0
     if settings.deviations.gathered_radius:  # deviation: gathered-radius, docs/DEVIATIONS.md
@@ -173,8 +198,10 @@ def refine_records(scene, caster, sources: GatherSources, cache: IrradianceCache
         else:
             refined.wall = open_walls(K)
     if settings.deviations.gradient_limiting:  # deviation: gradient-limiting, docs/DEVIATIONS.md
-        refined.grad_t, refined.grad_r = limit_gradients(refined.E, refined.grad_t, refined.grad_r,
-                                                         params.a * refined.R)
+        grad_t, grad_r = limit_gradients(E, grad_t, grad_r, params.a * refined.R)
+    refined.E, refined.grad_r, refined.grad_t = E[:, :3], grad_r[:, :3], grad_t[:, :3]
+    if sources.sky is not None:  # deviation: sky-gathering, docs/DEVIATIONS.md
+        refined.E_sky, refined.grad_r_sky, refined.grad_t_sky = E[:, 3:], grad_r[:, 3:], grad_t[:, 3:]
     caster.rays_cast += counters["refine_rays_cast"] + counters["refine_shadow_rays"]
     return refined, counters
 
@@ -187,9 +214,10 @@ class Gathers:
     average also shrinks the virtual rays' photon noise, which a repeated reuse would read again.
     """
 
-    def __init__(self, K: int):
+    def __init__(self, K: int, channels: int = 3):
         self.n = np.zeros(K)
-        self.E, self.grad_r, self.grad_t = np.zeros((K, 3)), np.zeros((K, 3, 3)), np.zeros((K, 3, 3))
+        self.E = np.zeros((K, channels))
+        self.grad_r, self.grad_t = np.zeros((K, channels, 3)), np.zeros((K, channels, 3))
         self.inv_R, self.variance, self.R_first = np.zeros(K), np.zeros(K), np.zeros(K)
         self.inside = np.zeros(K, bool)
 
@@ -235,7 +263,7 @@ def refine_batch(scene, caster, sources: GatherSources, p_k: np.ndarray, n_k: np
     B = len(p_k)
     t1, t2, n = local_frames(n_k)
     frames = (p_k, t1, t2, n)
-    sums = CellSums(B, H)
+    sums = CellSums(B, H, sources.sky is not None)
     probe_rays = visibility_rays = path_rays = virtual = cells_virtual = 0
     zone_radius = np.full(B, np.inf)
     hits = []
@@ -246,7 +274,7 @@ def refine_batch(scene, caster, sources: GatherSources, p_k: np.ndarray, n_k: np
         virtual, cells_virtual, visibility_rays, path_rays = fill_virtual(caster, sources, frames, zone_lengths,
                                                                           zone_photons, zone_radius, sums, rng)
     empty = sums.empty_cells()  # Figure 4c: real rays for the cells no ray reached
-    hits.append(trace_real(caster, frames, empty, sums, rng)[0])
+    hits.append(trace_real(caster, frames, empty, sums, rng, sources.sky)[0])
     real = RealHits.concatenate(hits)
     shadow_rays, gap_hits = shade_real(scene, caster, sources, real, sums, rng, n)
     E, grad_r, grad_t, R = sums.irradiance_and_gradients(t1, t2, n, r_floor)

@@ -95,6 +95,11 @@ class Deviations:
     transparent_shadows: bool = True
     """Shadow rays and photons pass transmissive triangles (Geometry.transmission), as Cycles'
     transparent shadows; off, every triangle is opaque."""
+    sky_gathering: bool = True
+    """Final: the world's light reaches the texels through the records (their gathering rays that escape
+    read it, Equation 3 interpolates it with its own gradients) instead of shadow rays per texel sample;
+    it stays in the direct-light image. Not with photon-path reuse or transmissive triangles (gathering
+    rays stop at glass)."""
 
 
 @dataclass(frozen=True)
