@@ -1,7 +1,7 @@
 """Daylight room: sun through a window and a uniform sky, PDIC Final against Cycles, texel by texel.
 
     .venv/bin/python bench/daylight_room.py [--density 16] [--spp 1024] [--bounces 32] [--out DIR]
-        [--direct-samples 16] [--deviations sky_gathering=0]
+        [--direct-samples 16] [--deviations sky_gathering=0] [--glass 0.8] [--competitors 16,64]
 
 Every other bench scene is lit by lamps inside it; an interior lit by daylight through a window is
 what most architectural and game light maps hold. One mesh object (a 6 x 5 x 3 m room with 0.2 m
@@ -14,6 +14,11 @@ seeds 1 and 2, cached in ``--out``: their mean is the reference and their differ
 which is subtracted (bench/competitors.py ``errors``). Prints, for the direct and the indirect light,
 the noise-corrected relative RMSE per texel and on 8x8 blocks over all texels both baked and over
 the room's inside (texels whose normal faces into the room from inside it), and the mean ratio.
+
+``--competitors 16,64``: also the baker users already have, as bench/competitors.py runs it: Cycles
+bakes Diffuse Direct+Indirect (seed 0, a 16-texel margin) at those samples, raw and denoised by OIDN
+(RT, RTLightmap), against the sum of the two reference pairs, with PDIC Final's direct+indirect, CPU
+seconds of each (PDIC's job with its unwrap; Cycles' bake call plus the denoise).
 """
 from __future__ import annotations
 
@@ -39,7 +44,8 @@ import bpy  # noqa: E402
 
 import cycles_reference as cr  # noqa: E402
 from bench.scenes import boxes_mesh  # noqa: E402
-from bench.competitors import errors, texel_geometry  # noqa: E402
+from bench.competitors import (clocked, cycles_bake, denoise, errors, set_cycles_threads,  # noqa: E402
+                               texel_geometry, warm_up_denoisers)
 from bench.run import with_deviations  # noqa: E402
 from test_cathedral_direct_vs_cycles import _diffuse_material  # noqa: E402
 from pdic import pdic_addon  # noqa: E402
@@ -74,11 +80,13 @@ def boxes() -> list:
     return shell + south + table + shelf
 
 
-def build(sun_angle: float = 0.0, lamp: float = 0.0) -> bpy.types.Object:
+def build(sun_angle: float = 0.0, lamp: float = 0.0, glass: float = 0.0) -> bpy.types.Object:
     """A factory-fresh file with the room as one object, the sun and the sky; returns the object.
 
     sun_angle : the sun's angular diameter, degrees (0: hard shadows). lamp : watts of a point light
-    of Blender's default radius (0.1 m) hanging 0.6 m under the ceiling over the table; 0: none."""
+    of Blender's default radius (0.1 m) hanging 0.6 m under the ceiling over the table; 0: none.
+    glass : > 0 glazes the window with a 1 cm pane (an object of its own, not baked) of a Principled
+    BSDF of Alpha 1 - glass: each of its two faces passes ``glass`` of the light, in Cycles and PDIC."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     world = bpy.data.worlds.new("Sky")
     background = world.node_tree.nodes["Background"]
@@ -89,6 +97,12 @@ def build(sun_angle: float = 0.0, lamp: float = 0.0) -> bpy.types.Object:
     mesh.materials.append(_diffuse_material(bpy, "Plaster", ALBEDO))
     ob = bpy.data.objects.new("Room", mesh)
     bpy.context.scene.collection.objects.link(ob)
+    if glass > 0:
+        (wx0, wx1), (wz0, wz1) = WINDOW
+        pane = bpy.data.objects.new("Pane", boxes_mesh("Pane", [((wx0, -0.105, wz0), (wx1, -0.095, wz1))]))
+        pane.data.materials.append(_glass_material(1.0 - glass))
+        pane.pdic.bake = False
+        bpy.context.scene.collection.objects.link(pane)
     sun = bpy.data.lights.new("Sun", "SUN")
     sun.energy = SUN_STRENGTH
     sun.angle = math.radians(sun_angle)
@@ -107,6 +121,18 @@ def build(sun_angle: float = 0.0, lamp: float = 0.0) -> bpy.types.Object:
     return ob
 
 
+def _glass_material(alpha: float):
+    """A Principled BSDF of base ALBEDO, no specular layer, Alpha ``alpha``: light passes 1 - alpha."""
+    material = bpy.data.materials.new("Glass")
+    if material.node_tree is None:
+        material.use_nodes = True
+    principled = next(n for n in material.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+    principled.inputs["Base Color"].default_value = (ALBEDO, ALBEDO, ALBEDO, 1.0)
+    principled.inputs["Specular IOR Level"].default_value = 0.0
+    principled.inputs["Alpha"].default_value = alpha
+    return material
+
+
 def digest(ob) -> str:
     """8 hex digits of the room as Cycles sees it (mesh, albedo, lights): a cached reference is for it only."""
     mesh = ob.data
@@ -116,7 +142,9 @@ def digest(ob) -> str:
     lights = sorted((o.name, o.data.type, o.data.energy, getattr(o.data, "angle", 0.0),
                      getattr(o.data, "shadow_soft_size", 0.0), tuple(o.location)) for o in bpy.data.objects
                     if o.type == "LIGHT")
-    h.update(repr((ALBEDO, SUN_STRENGTH, SUN_ELEVATION, WORLD_STRENGTH, lights)).encode())
+    panes = sorted((o.name, o.active_material.node_tree.nodes["Principled BSDF"].inputs["Alpha"].default_value)
+                   for o in bpy.data.objects if o.name.startswith("Pane"))
+    h.update(repr((ALBEDO, SUN_STRENGTH, SUN_ELEVATION, WORLD_STRENGTH, lights) + ((panes,) if panes else ())).encode())
     return h.hexdigest()[:8]
 
 
@@ -156,12 +184,14 @@ def main(argv=None):
     ap.add_argument("--lamp", type=float, default=0.0, help="watts of a soft point light over the table")
     ap.add_argument("--direct-samples", type=int, default=0, help="PDIC's Direct Samples (0: the preset's)")
     ap.add_argument("--deviations", default="", help="switches as bench/run.py's, e.g. sky_gathering=0")
+    ap.add_argument("--glass", type=float, default=0.0, help="a pane in the window passing this share per face")
+    ap.add_argument("--competitors", default="", help="Cycles + OIDN at these samples, e.g. 16,64")
     ap.add_argument("--out", default="/tmp/pdic_daylight_room")
     args = ap.parse_args(argv)
     folder = Path(args.out)
     folder.mkdir(parents=True, exist_ok=True)
     pdic_addon.register()
-    ob = build(args.sun_angle, args.lamp)
+    ob = build(args.sun_angle, args.lamp, args.glass)
     props = bpy.context.scene.pdic
     props.quality = "FINAL"
     props.texel_density = args.density
@@ -201,6 +231,30 @@ def main(argv=None):
               f"room's inside {err['texel_interior']:.2%} / {err['block_interior']:.2%}, mean {ratio_in:.4f}")
     np.savez_compressed(folder / f"pdic_seed{args.seed}.npz", direct=result.direct[name],
                         indirect=result.indirect[name], room=room, centre=centre)
+    if args.competitors:
+        ladder = [int(spp) for spp in args.competitors.split(",")]
+        competitors(ob, W, H, result, name, room, centre, normal, ladder, cpu, args, folder)
+
+
+def competitors(ob, W: int, H: int, result, name: str, room, centre, normal, ladder: list, pdic_cpu: float, args,
+                folder: Path):
+    """Cycles + OIDN against PDIC Final on direct+indirect, inside the room (see the module's docstring)."""
+    pairs = [reference(ob, W, H, passes, args.spp, args.bounces, folder) for passes in ("DIRECT", "INDIRECT")]
+    pair = (pairs[0][0] + pairs[1][0], pairs[0][1] + pairs[1][1])
+    baked = ((pair[0].sum(axis=2) > 0) | (pair[1].sum(axis=2) > 0)) & centre & result.centre_inside[name]
+    rows = [("PDIC Final (unwrap included)", result.direct[name] + result.indirect[name], pdic_cpu)]
+    set_cycles_threads(2)
+    warm_up_denoisers()
+    for spp in ladder:
+        bake = cycles_bake(ob, (W, H), frozenset({"DIRECT", "INDIRECT"}), spp, 0)
+        rows.append((f"Cycles {spp} spp", bake["image"][..., :3], bake["cpu"]))
+        for mode in ("RT", "RTLightmap"):
+            out, _, cpu = clocked(denoise, bake["image"][..., :3], mode, normal)
+            rows.append((f"Cycles {spp} spp + OIDN {mode}", out, bake["cpu"] + cpu))
+    for method, image, cpu in rows:
+        err = errors(image, pair, baked, room)
+        print(f"{method:34s} {cpu:6.1f} CPU s; inside {err['texel_interior']:.2%} per texel, "
+              f"{err['block_interior']:.2%} 8x8; all texels {err['texel']:.2%} / {err['block']:.2%}")
 
 
 if __name__ == "__main__":

@@ -32,6 +32,8 @@ class CellSums:
         self.r_min = np.full(size, np.inf)
         self.inv_d_sum = np.zeros(records)
         self.inv_d_count = np.zeros(records)
+        self.glass_rays = 0
+        """Rays cast on past glass (:func:`core.real_rays.through_glass`)."""
 
     @property
     def size(self) -> int:
@@ -78,8 +80,8 @@ class CellSums:
         self.L_sum[cell, :3] += L
 
     def add_sky(self, cell: np.ndarray, L_world: np.ndarray):
-        """The world's radiance L_world (3,) into the sky channels of the distinct cells whose real ray
-        escaped (deviation: sky-gathering)."""
+        """The world's radiance L_world, (3,) or one per cell (h, 3), into the sky channels of the distinct
+        cells whose real ray reached it (deviation: sky-gathering)."""
         self.L_sum[cell, 3:] += L_world
 
     def add_distances(self, inv_sum: np.ndarray, inv_n: np.ndarray):

@@ -18,7 +18,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .albedo import albedo as albedo_at
-from .constants import CORNER_HEIGHT, GAP_COS, GAP_WALK_BOUNCES, GAP_WALK_SURVIVAL, HIT_GRID_NEAR
+from .constants import (CORNER_HEIGHT, GAP_COS, GAP_WALK_BOUNCES, GAP_WALK_SURVIVAL, HIT_GRID_NEAR,
+                        TRANSPARENT_MAX_LAYERS)
 from .direct import direct_irradiance
 from .gather_cells import CellSums
 from .photon_fallback import NOT_ASKED, NearestPhotons, nearest_photon_seen, photon_irradiance
@@ -69,7 +70,7 @@ def trace_real(caster, frames, cells: np.ndarray, sums: CellSums, rng: np.random
     origin = caster.offset_origins(np.take(p_k, rec, axis=0), n_rec, d_world)
     hits = caster.intersect(origin, d_world, unit=True)
     sums.add_real_rays(cells, w_local, hits.t)
-    if sky is not None:
+    if sky is not None:  # the rays that escaped; what glass passes: through_glass
         sums.add_sky(cells[~hits.hit], sky)
     hit = np.flatnonzero(hits.hit)
     d_hit = np.take(d_world, hit, axis=0)
@@ -81,18 +82,54 @@ def trace_real(caster, frames, cells: np.ndarray, sums: CellSums, rng: np.random
     return found, inv_sum, inv_n
 
 
+def through_glass(caster, hits: RealHits, sums: CellSums, sky: np.ndarray | None = None
+                  ) -> list[tuple[RealHits, np.ndarray]]:
+    """What real rays find past the glass they met: [(hits behind a layer, their weights (h,)), ...], layer by
+    layer, each weight the product of the transmissions tau of the layers passed (up to
+    TRANSPARENT_MAX_LAYERS, as shadow rays and photons; deviation: transparent-shadows). A layer's own hit
+    is shaded as any hit (its albedo is what it reflects); what lies past it adds tau of its radiance to the
+    same cell (:func:`shade_real` with the weights). Rays that escape past a layer bring ``sky`` (3,) times
+    their weight to the cell's sky channels (deviation: sky-gathering). Nothing without transmissive
+    triangles. The rays cast are counted in ``sums.glass_rays``."""
+    out = []
+    tau = caster.transmission
+    if tau is None or len(hits.cell) == 0:
+        return out
+    glass = np.flatnonzero(np.take(tau, hits.triangle) > 0)
+    weight = np.take(tau, hits.triangle[glass])
+    for _ in range(TRANSPARENT_MAX_LAYERS):
+        if len(glass) == 0:
+            break
+        d = hits.direction[glass]
+        n_face = np.take(caster.face_normals, hits.triangle[glass], axis=0)
+        origin = caster.offset_origins(hits.q[glass], n_face, d)
+        found = caster.intersect(origin, d, unit=True)
+        sums.glass_rays += len(glass)
+        escaped = ~found.hit
+        if sky is not None and escaped.any():
+            sums.add_sky(hits.cell[glass[escaped]], weight[escaped, None] * sky)
+        on = np.flatnonzero(found.hit)
+        hits = RealHits(hits.cell[glass[on]], found.triangle[on], found.barycentric[on],
+                        origin[on] + d[on] * found.t[on, None], d[on], hits.t[glass[on]] + found.t[on])
+        weight = weight[on]
+        out.append((hits, weight))
+        glass = np.flatnonzero(np.take(tau, hits.triangle) > 0)
+        weight = weight[glass] * np.take(tau, hits.triangle[glass])
+    return out
+
+
 def shade_real(scene, caster, sources, hits: RealHits, sums: CellSums, rng: np.random.Generator,
-               n_record: np.ndarray | None = None) -> tuple[int, int]:
+               n_record: np.ndarray | None = None, weight: np.ndarray | None = None) -> tuple[int, int]:
     """Add the radiance at real rays' hits to their cells (one call for all of a batch's rays: the
     cache lookup at hits costs per call as well as per hit). Returns the shadow, fallback and gap rays
     spent and the hits that gathered in a gap. n_record : (B, 3) the batch's record normals
-    (deviation: gap-gathering), or None."""
+    (deviation: gap-gathering), or None. weight : (h,) what glass on the way passed (:func:`through_glass`)."""
     if len(hits.cell) == 0:
         return 0, 0
     facing = None if n_record is None else np.take(n_record, hits.cell // sums.H.cells, axis=0)
     L, shadow_rays, in_gap = radiance_at_hits(scene, caster, sources, hits.triangle, hits.barycentric, hits.q,
                                               hits.direction, hits.t, rng, facing)
-    sums.add_real_radiance(hits.cell, L)
+    sums.add_real_radiance(hits.cell, L if weight is None else weight[:, None] * L)
     return shadow_rays, in_gap
 
 

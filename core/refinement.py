@@ -33,7 +33,7 @@ from .hit_radiance import HitGrid, build_hit_grid
 from .interpolation import CacheLookup
 from .irradiance_cache import CacheParameters, IrradianceCache, Zones, neighbour_clamp
 from .photons import PhotonLighting
-from .real_rays import RealHits, indirect_on_both_sides, seeing, shade_real, trace_real
+from .real_rays import RealHits, indirect_on_both_sides, seeing, shade_real, through_glass, trace_real
 from .record_walls import open_walls, wall_distances
 from .settings import BakeSettings, Deviations
 from .validity import closed_backs, open_backs, overrule_by_photons
@@ -84,15 +84,12 @@ def gathered_sky(scene, settings: BakeSettings) -> np.ndarray | None:
     with their own gradients it is as smooth as the indirect light, where 16 shadow rays per texel
     sample toward a sky seen through a window are grain. Only when the bake refines records and
     writes both direct and indirect light (the records exist and the texels take both), with standard
-    gathering (virtual rays carry no sky) and no transmissive triangle (a gathering ray stops at glass;
-    the texels' shadow rays pass it).
+    gathering (virtual rays carry no sky). A gathering ray that meets glass brings the sky beyond it as
+    a shadow ray would (:func:`core.real_rays.trace_real`).
     """
     world = scene.world
     if not (settings.deviations.sky_gathering and settings.refine and settings.direct and settings.indirect
             and settings.photons > 0 and not settings.reuse_photon_paths and not world.is_black):
-        return None
-    transmission = scene.geometry.transmission
-    if transmission is not None and (transmission > 0).any():
         return None
     return np.asarray(world.radiance, np.float64).reshape(3)
 
@@ -277,6 +274,9 @@ def refine_batch(scene, caster, sources: GatherSources, p_k: np.ndarray, n_k: np
     hits.append(trace_real(caster, frames, empty, sums, rng, sources.sky)[0])
     real = RealHits.concatenate(hits)
     shadow_rays, gap_hits = shade_real(scene, caster, sources, real, sums, rng, n)
+    for beyond, weight in through_glass(caster, real, sums, sources.sky):  # deviation: transparent-shadows
+        more_rays, more_gap = shade_real(scene, caster, sources, beyond, sums, rng, n, weight)
+        shadow_rays, gap_hits = shadow_rays + more_rays, gap_hits + more_gap
     E, grad_r, grad_t, R = sums.irradiance_and_gradients(t1, t2, n, r_floor)
     inside = np.zeros(B, bool)
     # deviation: record-validity, docs/DEVIATIONS.md
@@ -290,7 +290,7 @@ def refine_batch(scene, caster, sources: GatherSources, p_k: np.ndarray, n_k: np
     return {
         "E": E, "grad_r": grad_r, "grad_t": grad_t, "R": R,
         "standard_error": np.where(inside, 0.0, sums.standard_error()), "inside": inside,
-        "refine_rays_cast": len(empty) + probe_rays + visibility_rays + path_rays,
+        "refine_rays_cast": len(empty) + probe_rays + visibility_rays + path_rays + sums.glass_rays,
         "refine_probe_rays": probe_rays,
         "refine_visibility_rays": visibility_rays,
         "refine_path_visibility_rays": path_rays,

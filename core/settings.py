@@ -98,8 +98,8 @@ class Deviations:
     sky_gathering: bool = True
     """Final: the world's light reaches the texels through the records (their gathering rays that escape
     read it, Equation 3 interpolates it with its own gradients) instead of shadow rays per texel sample;
-    it stays in the direct-light image. Not with photon-path reuse or transmissive triangles (gathering
-    rays stop at glass)."""
+    it stays in the direct-light image; a gathering ray that meets glass brings the sky beyond it as a
+    shadow ray would. Not with photon-path reuse (virtual rays carry no sky)."""
 
 
 @dataclass(frozen=True)

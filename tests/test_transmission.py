@@ -112,3 +112,48 @@ def test_transparent_shadows_switch_decides_whether_a_clear_sheet_shadows_the_fl
     floor = bake(_sheet_over_a_floor_target(1.0), settings).direct["Floor"]
     under = floor[7:9, 7:9]  # texels at the floor's centre, under the 2 m sheet
     np.testing.assert_allclose(under, expected, atol=1e-6)
+
+
+def _room_lit_through_a_pane(tau: float | None) -> Scene:
+    """A closed unit box with a 0.2 m window in its front wall; outside, a lamp behind a shield lights a
+    2 m reflector facing the window, so the box's floor gets only indirect light, all of it through the
+    window. tau: a black pane (albedo 0) in the window passing tau of the light; None: no pane."""
+    from scenes import quad_scene
+    from pdic.core.scene import PointLight
+
+    X, Y, Z = np.eye(3)
+    faces = [quad(np.zeros(3), X, Y), quad(Y, X, Z), quad(Z, Y, X), quad(np.zeros(3), Y, Z), quad(X, Z, Y),
+             quad(np.zeros(3), 0.4 * Z, X), quad(0.6 * Z, 0.4 * Z, X),
+             quad(0.4 * Z, 0.2 * Z, 0.4 * X), quad(0.6 * X + 0.4 * Z, 0.2 * Z, 0.4 * X),
+             quad(np.array([-0.5, -1.0, -0.5]), 2 * Z, 2 * X), quad(np.array([0.2, -0.8, 0.2]), 0.6 * X, 0.6 * Z)]
+    if tau is not None:
+        faces.append(quad(0.4 * X + 0.4 * Z, 0.2 * Z, 0.2 * X))
+    material = np.zeros(2 * len(faces), np.int32)
+    if tau is not None:
+        material[-2:] = 1
+    lamp = PointLight("lamp", np.array([0.5, -0.85, 0.5]), np.full(3, 50.0))
+    scene = quad_scene(faces, {"floor": (0, 32)}, [lamp], materials=material)
+    if tau is None:
+        return scene
+    base = np.array([[0.7] * 3, [0.0] * 3], np.float32)
+    transmission = np.zeros(scene.geometry.count, np.float32)
+    transmission[-2:] = tau
+    return replace(scene, materials=replace(scene.materials, base_color=base),
+                   geometry=replace(scene.geometry, transmission=transmission))
+
+
+def test_final_gathering_sees_through_glass():
+    """Pass 3's gathering rays pass a transmissive layer as shadow rays and photons do: what lies past
+    the pane adds tau of its radiance. A fully clear pane is then no pane (before, the rays stopped at it
+    and read its black surface: the floor's indirect light 24 % dark), and a pane passing 0.6 passes 0.6
+    of the light that came in through the window (measured 0.60)."""
+    final = preset("FINAL", threads=2)
+    indirect = {}
+    for tau in (None, 1.0, 0.6):
+        result = bake(_room_lit_through_a_pane(tau), final)
+        mask = result.centre_inside["floor"]
+        assert result.direct["floor"][mask].max() == 0.0  # the shield keeps the lamp out
+        indirect[tau] = result.indirect["floor"][mask].mean()
+    assert indirect[None] > 0
+    assert abs(indirect[1.0] / indirect[None] - 1.0) < 0.06
+    assert abs(indirect[0.6] / indirect[1.0] - 0.6) < 0.05
