@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/daylight_room.py [--density 16] [--spp 1024] [--bounces 32] [--out DIR]
         [--direct-samples 16] [--deviations sky_gathering=0] [--glass 0.8] [--competitors 16,64]
+        [--quality PREVIEW]
 
 Every other bench scene is lit by lamps inside it; an interior lit by daylight through a window is
 what most architectural and game light maps hold. One mesh object (a 6 x 5 x 3 m room with 0.2 m
@@ -185,6 +186,7 @@ def main(argv=None):
     ap.add_argument("--direct-samples", type=int, default=0, help="PDIC's Direct Samples (0: the preset's)")
     ap.add_argument("--deviations", default="", help="switches as bench/run.py's, e.g. sky_gathering=0")
     ap.add_argument("--glass", type=float, default=0.0, help="a pane in the window passing this share per face")
+    ap.add_argument("--quality", default="FINAL", choices=("PREVIEW", "FINAL"))
     ap.add_argument("--competitors", default="", help="Cycles + OIDN at these samples, e.g. 16,64")
     ap.add_argument("--out", default="/tmp/pdic_daylight_room")
     args = ap.parse_args(argv)
@@ -193,7 +195,7 @@ def main(argv=None):
     pdic_addon.register()
     ob = build(args.sun_angle, args.lamp, args.glass)
     props = bpy.context.scene.pdic
-    props.quality = "FINAL"
+    props.quality = args.quality
     props.texel_density = args.density
     props.seed = args.seed
     props.image_format = "EXR_FLOAT"
@@ -214,7 +216,7 @@ def main(argv=None):
     position, normal, centre = texel_geometry(job.extraction.scene)
     room = inside_room(position + job.extraction.scene.origin_world, normal)
     counters = result.stats["counters"]
-    print(f"daylight room: {len(ob.data.polygons):,} faces, map {W}x{H} at {args.density:g} texels/m; PDIC Final "
+    print(f"daylight room: {len(ob.data.polygons):,} faces, map {W}x{H} at {args.density:g} texels/m; PDIC {args.quality.title()} "
           f"{wall:.1f} s wall, {cpu:.1f} CPU s (unwrap included), photons emitted {counters.get('photons_emitted'):,}, "
           f"stored {counters.get('photons_stored'):,}, records {counters.get('records_total'):,}")
     for passes, image in (("DIRECT", result.direct[name]), ("INDIRECT", result.indirect[name])):
@@ -242,7 +244,7 @@ def competitors(ob, W: int, H: int, result, name: str, room, centre, normal, lad
     pairs = [reference(ob, W, H, passes, args.spp, args.bounces, folder) for passes in ("DIRECT", "INDIRECT")]
     pair = (pairs[0][0] + pairs[1][0], pairs[0][1] + pairs[1][1])
     baked = ((pair[0].sum(axis=2) > 0) | (pair[1].sum(axis=2) > 0)) & centre & result.centre_inside[name]
-    rows = [("PDIC Final (unwrap included)", result.direct[name] + result.indirect[name], pdic_cpu)]
+    rows = [(f"PDIC {args.quality.title()} (unwrap included)", result.direct[name] + result.indirect[name], pdic_cpu)]
     set_cycles_threads(2)
     warm_up_denoisers()
     for spp in ladder:

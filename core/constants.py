@@ -41,6 +41,9 @@ STREAM_REFINE_HOLES = 20
 STREAM_HIT_GRID = 14
 """Shadow rays at the hit grid's cell centroids (deviation: hit-grid), ``[seed, 14, use, side, chunk]``:
 use 0 for pass 3, 1 for the hole records."""
+STREAM_SKY = 6
+"""Preview's records' own sky rays (deviation: sky-gathering), ``[seed, 6, use, batch]``: use 0 for pass 2's
+records, 1 + r for hole records of round r."""
 STREAM_DENSITY_CONTROL = 5
 """Section 3.4 density control: which stored photons are discarded, ``[seed, 5]``."""
 STREAM_CHR99_SUBSAMPLE = 99
@@ -80,6 +83,10 @@ ABOVE_PLANE = 1e-9
 exceeds this fraction of its distance."""
 RADIANCE_FLOOR = 1e-30
 """Mean virtual-ray radiance below this counts as this in the flux-weighted harmonic mean."""
+PREVIEW_SKY_ROWS = 16
+PREVIEW_SKY_COLUMNS = 32
+"""Preview's records cast one ray per cell of this hemisphere to gather the sky (deviation: sky-gathering):
+128 rays that are only asked whether they escape; Final's records use their gathering rays."""
 
 # --------------------------------------------------------------------------- record walls (deviation: wall-sectors)
 WALL_RAYS = 8

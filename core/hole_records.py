@@ -15,32 +15,34 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .constants import FINE_ZONE_TEXELS, GAP_TEXELS, NEAREST_RECORDS, STREAM_HOLE_ORDER, STREAM_REFINE_HOLES
+from .constants import (FINE_ZONE_TEXELS, GAP_TEXELS, NEAREST_RECORDS, STREAM_HOLE_ORDER, STREAM_REFINE_HOLES,
+                        STREAM_SKY)
 from .density import PhotonDensity
 from .executor import Executor, Progress
 from .interpolation import interpolate, texel_values
 from .irradiance_cache import CacheParameters, IrradianceCache, cache_for_holes
 from .refinement import GatherSources, refine_records
 from .settings import BakeSettings
+from .sky_gathering import gather_sky
 from .validity import sample_validity
 
 
 def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: GatherSources | None,
                        cache: IrradianceCache, target_index: int, points, texel_size: float, stream: int,
                        params: CacheParameters, settings: BakeSettings, executor: Executor, progress: Progress,
-                       stats) -> tuple[np.ndarray, IrradianceCache, np.ndarray]:
+                       stats, sky: np.ndarray | None = None) -> tuple[np.ndarray, IrradianceCache, np.ndarray]:
     """Texel validity, then Equation 3 with hole records for one target: (E (n, 3), its hole records,
     the samples' shares of their texels' indirect light (n,), :func:`core.validity.indirect_weights`).
 
     target_index : the target's index in ``scene.targets``; points : its
     :class:`~core.texels.TexelPoints`; texel_size : world size of one texel.
-    sources : what refining hole records reads (Final quality), None for Preview. When its ``sky`` is
-        set (deviation: sky-gathering) E is (n, 6): the records' gathered sky follows in channels 3-5.
+    sources : what refining hole records reads (Final quality), None for Preview.
+    sky : the world's radiance (3,) when the records gather it (deviation: sky-gathering,
+        :mod:`core.sky_gathering`): E is then (n, 6), the records' sky in channels 3-5; or None.
     """
-    sky = sources is not None and sources.sky is not None
-    E = np.zeros((len(points), 6 if sky else 3))
-    if density is None or len(points) == 0:
-        return E, IrradianceCache(), points.weight.astype(np.float64)
+    if density is None or len(points) == 0:  # no records: the sky stays the texels' own (3 channels)
+        return np.zeros((len(points), 3)), IrradianceCache(), points.weight.astype(np.float64)
+    E = np.zeros((len(points), 3 if sky is None else 6))
     inside, weights = sample_validity(scene, caster, density, target_index, points, texel_size, stream, params.R_min,
                                       settings, executor, progress, stats)
     valid = np.flatnonzero(~inside)
@@ -55,7 +57,7 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
         if len(fine):
             E_fine, w_fine = interpolate(filled.cache, params.a, settings.gradients, valid_points.p[fine],
                                          valid_points.n_shading[fine], executor, progress,
-                                         caster=_record_visibility(caster, params), sky=sky)
+                                         caster=_record_visibility(caster, params), sky=sky is not None)
             covered = w_fine > 0
             E[valid[fine[covered]]] = E_fine[covered]
     stats.add(texel_points_interpolated=len(merged) + len(fine), texel_points_unfilled=filled.unfilled,
@@ -113,12 +115,13 @@ def interpolate_filling_holes(scene, caster, density: PhotonDensity, sources: Ga
 
 def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | None, cache: IrradianceCache,
                points, params: CacheParameters, settings: BakeSettings, executor: Executor,
-               progress: Progress, texel_size: float = 0.0, sky: bool = False) -> FilledLookup:
+               progress: Progress, texel_size: float = 0.0, sky: np.ndarray | None = None) -> FilledLookup:
     """:func:`interpolate_filling_holes`, with the weights and smallest zones at every point.
 
     texel_size : world size of one texel; points no zone accepts first try zones widened by
     GAP_TEXELS of it (deviation: gap-fill; 0 skips that).
-    sky : interpolate the records' gathered sky too (E (m, 6), :attr:`core.interpolation.CacheLookup.sky`).
+    sky : the world's radiance (3,): interpolate the records' gathered sky too (E (m, 6),
+        :attr:`core.interpolation.CacheLookup.sky`); Preview's hole records gather it (:func:`_hole_records`).
     Equation 3 runs once over all points and, after each round of hole records, again at the
     points that were holes (covered points keep the records they had; the smallest zones there
     leave hole records out).
@@ -127,7 +130,7 @@ def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | N
 
     def lookup(c, index, caster=seeing, margin=0.0):
         return interpolate(c, params.a, settings.gradients, points.p[index], points.n_shading[index], executor,
-                           progress, with_zone=True, caster=caster, margin=margin, sky=sky)
+                           progress, with_zone=True, caster=caster, margin=margin, sky=sky is not None)
 
     E, w, smallest = lookup(cache, slice(None))
     hole_records, counters = 0, {}
@@ -144,7 +147,7 @@ def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | N
             if len(holes) == 0:
                 break
         new, refined = _hole_records(scene, caster, density, sources, cache, points.p[holes], points.n_shading[holes],
-                            params, settings, executor, progress, round_)
+                                     params, settings, executor, progress, round_, sky)
         if len(new) == 0:
             break
         hole_records += len(new)
@@ -155,14 +158,14 @@ def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | N
     unfilled = np.flatnonzero(w <= 0)
     if len(unfilled) and len(cache) and settings.deviations.nearest_record_fallback:
         # deviation: nearest-record-fallback, docs/DEVIATIONS.md (counted in the stats).
-        E[unfilled] = nearest_record(cache, points.p[unfilled], points.n_shading[unfilled], seeing, sky)
+        E[unfilled] = nearest_record(cache, points.p[unfilled], points.n_shading[unfilled], seeing, sky is not None)
     return FilledLookup(E, w, smallest, cache, hole_records, len(unfilled), counters)
 
 
 def _hole_records(scene, caster, density, sources, cache, cand_p, cand_n, params, settings, executor, progress,
-                  round_: int) -> tuple[IrradianceCache, dict]:
-    """One round of section 3.4: Algorithm 1 over the uncovered samples, refined at Final quality;
-    and the refinement's counters."""
+                  round_: int, sky: np.ndarray | None = None) -> tuple[IrradianceCache, dict]:
+    """One round of section 3.4: Algorithm 1 over the uncovered samples, refined at Final quality (and
+    at Preview given ``sky``, gathering the sky, :func:`core.sky_gathering.gather_sky`); and the counters."""
     # Refined by standard gathering, a hole record's E_k comes from its rays alone: no density estimate.
     estimate = not settings.refine or settings.reuse_photon_paths
     new, zones, _ = cache_for_holes(density, cand_p, cand_n, params,
@@ -172,6 +175,10 @@ def _hole_records(scene, caster, density, sources, cache, cand_p, cand_n, params
     if settings.refine and len(new):
         new, counters = refine_records(scene, caster, sources, new, zones, settings, params, executor, progress,
                                        stream=STREAM_REFINE_HOLES + round_)
+    elif sky is not None:  # deviation: sky-gathering, docs/DEVIATIONS.md
+        new, counters["sky_rays"] = gather_sky(caster, new, sky, params.a, params.R_min,
+                                               settings.deviations.gradient_limiting, settings.seed,
+                                               (STREAM_SKY, 1 + round_), executor, progress)
     return new, counters
 
 

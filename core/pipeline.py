@@ -28,7 +28,7 @@ from scipy.ndimage import binary_dilation
 
 from . import texels as texel_stage
 from .bake_cache import BakeCache, NoBakeCache, target_key, transport_key
-from .constants import R_MIN_FLOOR, STREAM_DIRECT, ZONE_PHOTONS
+from .constants import R_MIN_FLOOR, STREAM_DIRECT, STREAM_SKY, ZONE_PHOTONS
 from .density import PhotonDensity
 from .density_control import controlled_pass
 from .direct import shade_direct
@@ -41,9 +41,10 @@ from .irradiance_cache import CacheParameters, IrradianceCache, cache_from_photo
 from .lightmaps import write_lightmaps
 from .photons import PhotonLighting, PhotonMap, trace_pass
 from .rays import RayCaster
-from .refinement import gather_sources, gathered_sky, light_photons, refine_records
+from .refinement import gather_sources, light_photons, refine_records
 from .scene import Scene, SceneError, World
 from .settings import BakeSettings
+from .sky_gathering import gather_sky, gathered_sky
 from .stats import BakeStats
 from .validity import sample_validity
 
@@ -378,7 +379,7 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
         (cache, _, _), (density, sources) = passes
         shaded.append(t)
         return indirect_at_texels(run.scene, run.caster(), density, sources, cache, index, t.points, t.texel_size,
-                                  t.stream, params, settings, run.executor, run.progress, run.stats)
+                                  t.stream, params, settings, run.executor, run.progress, run.stats, run.sky)
 
     shaded: list = []
     for index, t in enumerate(targets):  # rasterise_targets' list: scene.targets' order
@@ -423,6 +424,12 @@ def build_cache(run: "_Run", photons: PhotonMap, params: CacheParameters
     stats.set(records=build.records, kd_queries=build.kd_queries, R_min=params.R_min, R_max=params.R_max,
               wall_rays=build.wall_rays)
     run.density = density  # reused by the hole records of this bake (its kd-tree costs seconds)
+    if not settings.refine and run.sky is not None:  # deviation: sky-gathering: Preview's records gather it
+        with stats.stage("cache"):
+            cache, rays = gather_sky(run.caster(), cache, run.sky, params.a, params.R_min,
+                                     settings.deviations.gradient_limiting, settings.seed, (STREAM_SKY, 0),
+                                     run.executor, progress)
+        stats.add(sky_rays=rays)
     if settings.refine:
         progress.begin("Pass 3: refining records")
         lighting = light_photons(run.scene, run.caster(), photons, lighting, settings, run.executor, progress, stats)

@@ -59,7 +59,7 @@ class GatherSources:
     gap_reach : a R_min, scene units: a gap hit's walk bounces on while it stays this near (deviation:
         gap-gathering, :func:`core.real_rays.gap_irradiance`).
     sky : the world's radiance (3,) that escaping gathering rays bring to the records' sky channels
-        (deviation: sky-gathering, :func:`gathered_sky`), or None.
+        (deviation: sky-gathering, :func:`core.sky_gathering.gathered_sky`), or None.
     """
 
     density: PhotonDensity
@@ -74,24 +74,6 @@ class GatherSources:
     @property
     def nearest_photon_fallback(self) -> bool:
         return self.deviations.nearest_photon_fallback
-
-
-def gathered_sky(scene, settings: BakeSettings) -> np.ndarray | None:
-    """The world's radiance (3,) when the records gather the sky for the direct-light image, else None.
-
-    deviation: sky-gathering, docs/DEVIATIONS.md. A uniform world is smooth light, as smooth as the
-    indirect light, and the records' gathering rays already see it where they escape: interpolated
-    with their own gradients it is as smooth as the indirect light, where 16 shadow rays per texel
-    sample toward a sky seen through a window are grain. Only when the bake refines records and
-    writes both direct and indirect light (the records exist and the texels take both), with standard
-    gathering (virtual rays carry no sky). A gathering ray that meets glass brings the sky beyond it as
-    a shadow ray would (:func:`core.real_rays.trace_real`).
-    """
-    world = scene.world
-    if not (settings.deviations.sky_gathering and settings.refine and settings.direct and settings.indirect
-            and settings.photons > 0 and not settings.reuse_photon_paths and not world.is_black):
-        return None
-    return np.asarray(world.radiance, np.float64).reshape(3)
 
 
 def gather_sources(density: PhotonDensity, lighting: PhotonLighting, records: IrradianceCache,

@@ -96,10 +96,10 @@ class Deviations:
     """Shadow rays and photons pass transmissive triangles (Geometry.transmission), as Cycles'
     transparent shadows; off, every triangle is opaque."""
     sky_gathering: bool = True
-    """Final: the world's light reaches the texels through the records (their gathering rays that escape
-    read it, Equation 3 interpolates it with its own gradients) instead of shadow rays per texel sample;
-    it stays in the direct-light image; a gathering ray that meets glass brings the sky beyond it as a
-    shadow ray would. Not with photon-path reuse (virtual rays carry no sky)."""
+    """The world's light reaches the texels through the records (Final: their gathering rays that escape
+    read it; Preview: rays of their own; Equation 3 interpolates it with its own gradients) instead of
+    shadow rays per texel sample; it stays in the direct-light image; a ray that meets glass brings the
+    sky beyond it as a shadow ray would. Not with photon-path reuse (virtual rays carry no sky)."""
 
 
 @dataclass(frozen=True)
