@@ -69,9 +69,10 @@ class PDIC_SceneSettings(bpy.types.PropertyGroup):
     direct_samples: IntProperty(name="Direct Samples", default=DEFAULTS.direct_samples, min=1, soft_max=256,
                                 max=1024,
                                 description="Shadow rays per texel sample toward each soft light: area lights, "
-                                            "a sun or lamp with a size, emissive meshes, the sky (Custom "
-                                            "quality). Raise it where the sky is seen through windows: its "
-                                            "direct light is grainy at 16. Typical 16-256")
+                                            "a sun or lamp with a size, emissive meshes, and the sky when no "
+                                            "indirect light is baked (otherwise the cache's records bring the "
+                                            "sky) (Custom quality). Raise it for grainy soft shadows. "
+                                            "Typical 16-256")
     texel_density: FloatProperty(name="Texel Density", default=DEFAULTS.texel_density, min=0.0, soft_max=256.0,
                                  description="Texels per scene unit: each map grows until its charts fit at this "
                                              "density (0 = use the default resolution). Typical 8-64 for "
