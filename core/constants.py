@@ -86,7 +86,7 @@ RADIANCE_FLOOR = 1e-30
 PREVIEW_SKY_ROWS = 16
 PREVIEW_SKY_COLUMNS = 32
 """Preview's records cast one ray per cell of this hemisphere to gather the sky (deviation: sky-gathering):
-128 rays that are only asked whether they escape; Final's records use their gathering rays."""
+512 rays that are only asked whether they escape; Final's records use their gathering rays."""
 
 # --------------------------------------------------------------------------- record walls (deviation: wall-sectors)
 WALL_RAYS = 8

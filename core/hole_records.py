@@ -175,7 +175,7 @@ def _hole_records(scene, caster, density, sources, cache, cand_p, cand_n, params
     if settings.refine and len(new):
         new, counters = refine_records(scene, caster, sources, new, zones, settings, params, executor, progress,
                                        stream=STREAM_REFINE_HOLES + round_)
-    elif sky is not None:  # deviation: sky-gathering, docs/DEVIATIONS.md
+    elif not settings.refine and sky is not None:  # deviation: sky-gathering, docs/DEVIATIONS.md
         new, counters["sky_rays"] = gather_sky(caster, new, sky, params.a, params.R_min,
                                                settings.deviations.gradient_limiting, settings.seed,
                                                (STREAM_SKY, 1 + round_), executor, progress)
