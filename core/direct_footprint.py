@@ -94,8 +94,8 @@ def edge_texels(direct: DirectResult, points: TexelPoints, raster: TargetRaster,
 
 
 def footprint_direct(scene, caster, target_index: int, points: TexelPoints, raster: TargetRaster,
-                     texel_size: float, direct: DirectResult, settings, stream: int, executor, progress
-                     ) -> tuple[np.ndarray, dict]:
+                     texel_size: float, direct: DirectResult, settings, stream: int, executor, progress,
+                     contact=None) -> tuple[np.ndarray, dict]:
     """Direct irradiance (n, 3) at one target's samples with edge texels integrated over their footprint.
 
     Parameters
@@ -108,6 +108,8 @@ def footprint_direct(scene, caster, target_index: int, points: TexelPoints, rast
         ``direct_footprint_side``).
     stream : the target's random stream id; jitter and shadow rays draw from
         ``[seed, STREAM_DIRECT_FOOTPRINT, stream, ...]``.
+    contact : :class:`core.contact.ContactFaces` (deviation: contact-faces): footprint points on a face
+        another touches get no light, as ``direct``'s samples there have none; or None.
 
     Returns
     -------
@@ -129,6 +131,8 @@ def footprint_direct(scene, caster, target_index: int, points: TexelPoints, rast
     E_fp, rays = shade_direct(scene, caster, fp.p, fp.n_shading, fp.n_geometric, soft, settings.seed,
                               (STREAM_DIRECT_FOOTPRINT, stream, 1), executor, progress)
     counters["direct_footprint_shadow_rays"] = rays["shadow_rays"]
+    if contact is not None:
+        E_fp[contact.samples(fp.p, fp.triangle)] = 0.0
     size = raster.width * raster.height
     w = fp.weight.astype(np.float64)
     texel_E = np.stack([np.bincount(fp.texel, weights=w * E_fp[:, c], minlength=size) for c in range(3)], 1)

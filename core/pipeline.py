@@ -28,6 +28,7 @@ from scipy.ndimage import binary_dilation
 
 from . import texels as texel_stage
 from .bake_cache import BakeCache, NoBakeCache, target_key, transport_key
+from .contact import ContactFaces
 from .constants import R_MIN_FLOOR, STREAM_DIRECT, STREAM_SKY, ZONE_PHOTONS
 from .density import PhotonDensity
 from .density_control import controlled_pass
@@ -141,6 +142,7 @@ class _Run:
     store: BakeCache | NoBakeCache
     _caster: RayCaster | None = None
     _transport: str | None = None
+    _contact: ContactFaces | None = None
     density: PhotonDensity | None = None
     """Pass 2's photon kd-tree when this run built it (hole records reuse it: it costs seconds)."""
     hit_grid: HitGrid | None = None
@@ -166,6 +168,14 @@ class _Run:
                 self._caster = RayCaster(g.positions, self.scene.extent, self.executor, g.transmission)
             self.stats.clock = self._caster.clock
         return self._caster
+
+    def contact(self) -> ContactFaces | None:
+        """The faces that touch others face to face (deviation: contact-faces), or None when switched off."""
+        if not self.settings.deviations.contact_faces:
+            return None
+        if self._contact is None:
+            self._contact = ContactFaces(self.scene.geometry.positions, self.caster())
+        return self._contact
 
 
 @dataclass
@@ -283,10 +293,13 @@ def shade_direct_at_targets(run: "_Run", targets: list[TargetTexels]) -> None:
             direct, counters = shade_direct(lit, run.caster(), p.p, p.n_shading, p.n_geometric,
                                             settings.direct_samples, settings.seed, (STREAM_DIRECT, t.stream),
                                             run.executor, run.progress, whole=True)
+            contact = run.contact()
+            if contact is not None:  # deviation: contact-faces, docs/DEVIATIONS.md
+                direct = replace(direct, E=np.where(contact.samples(p.p, p.triangle)[:, None], 0.0, direct.E))
             E = direct.E
             if settings.deviations.direct_footprint:  # deviation: direct-footprint, docs/DEVIATIONS.md
                 E, more = footprint_direct(lit, run.caster(), index, p, t.raster, t.texel_size, direct,
-                                           settings, t.stream, run.executor, run.progress)
+                                           settings, t.stream, run.executor, run.progress, contact)
                 counters.update(more)
         stats.add(**counters)
         return E
@@ -300,7 +313,8 @@ def _direct_key(run: "_Run", t: TargetTexels) -> str:
     """The bake cache's key of a target's direct light."""
     settings = run.settings
     return run.store.key("direct", run.transport(), t.key, settings.direct_samples, settings.seed,
-                         settings.deviations.direct_footprint, settings.direct_footprint_side, run.sky is not None)
+                         settings.deviations.direct_footprint, settings.direct_footprint_side, run.sky is not None,
+                         settings.deviations.contact_faces)
 
 
 def validity_without_indirect(run: "_Run", targets: list[TargetTexels]) -> None:
@@ -319,7 +333,7 @@ def validity_without_indirect(run: "_Run", targets: list[TargetTexels]) -> None:
     def weights(index: int, t: TargetTexels):
         voted = _voted(t.E_direct, t.points.texel, t.raster.width, t.raster.height, settings.padding + 2)
         return sample_validity(run.scene, run.caster(), None, index, t.points, t.texel_size, t.stream, 0.0,
-                               settings, run.executor, run.progress, run.stats, voted)[1]
+                               settings, run.executor, run.progress, run.stats, voted, run.contact())[1]
 
     for index, t in enumerate(targets):
         key = store.key("indirect", "validity without indirect light", _direct_key(run, t), deviations,
@@ -379,7 +393,8 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
         (cache, _, _), (density, sources) = passes
         shaded.append(t)
         return indirect_at_texels(run.scene, run.caster(), density, sources, cache, index, t.points, t.texel_size,
-                                  t.stream, params, settings, run.executor, run.progress, run.stats, run.sky)
+                                  t.stream, params, settings, run.executor, run.progress, run.stats, run.sky,
+                                  run.contact())
 
     shaded: list = []
     for index, t in enumerate(targets):  # rasterise_targets' list: scene.targets' order

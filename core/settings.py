@@ -95,6 +95,10 @@ class Deviations:
     transparent_shadows: bool = True
     """Shadow rays and photons pass transmissive triangles (Geometry.transmission), as Cycles'
     transparent shadows; off, every triangle is opaque."""
+    contact_faces: bool = True
+    """Texel samples on a face another face touches face to face (a building's bottom on a ground plane, a
+    cabinet's back flush against a one-face wall) get no light, as in Cycles: their rays would start past
+    the touching face (core/contact.py). Off: they are lit from beyond it."""
     sky_gathering: bool = True
     """The world's light reaches the texels through the records (Final: their gathering rays that escape
     read it; Preview: rays of their own; Equation 3 interpolates it with its own gradients) instead of

@@ -139,14 +139,16 @@ def texel_validity(caster: RayCaster, points, seed: list, executor, progress, co
 
 
 def sample_validity(scene, caster: RayCaster, density, target_index: int, points, texel_size: float, stream: int,
-                    R_min: float, settings, executor, progress, stats, voted: np.ndarray | None = None
-                    ) -> tuple[np.ndarray, np.ndarray]:
+                    R_min: float, settings, executor, progress, stats, voted: np.ndarray | None = None,
+                    contact=None) -> tuple[np.ndarray, np.ndarray]:
     """One target's texel validity: (inside (n,) bool, each sample's share of its texel's light (n,),
     :func:`indirect_weights`), its counters added to ``stats`` (stage ``validity``).
 
     The back-face vote (:func:`texel_validity`), less photon evidence, or covered (:func:`verdict`);
     density None (no photons) leaves the evidence out. voted : (n,) bool the samples to vote on (the
-    rest count as outside: a bake without indirect light), or None for all.
+    rest count as outside: a bake without indirect light), or None for all. contact : the scene's
+    :class:`core.contact.ContactFaces` (deviation: contact-faces): samples on a face another touches
+    face to face are covered; or None.
     """
     progress.begin("Texel validity")
     inside, covered, rays = np.zeros(len(points), bool), np.zeros(len(points), bool), 0
@@ -160,11 +162,14 @@ def sample_validity(scene, caster: RayCaster, density, target_index: int, points
                 inside, covered = vote, cast
             else:
                 inside[voted], covered[voted] = vote, cast
+        touching = np.zeros(len(points), bool) if contact is None else contact.samples(points.p, points.triangle)
+        covered |= touching
         inside, overruled = verdict(inside, covered, caster, density, points.p, points.n_geometric, R_min, settings)
         weights, footprint_rays = indirect_weights(scene, caster, density, target_index, points, inside, settings,
-                                                   R_min, stream, cover, executor, progress)
+                                                   R_min, stream, cover, executor, progress, contact)
     stats.add(texel_samples_inside_geometry=int(inside.sum()), validity_rays=rays + footprint_rays,
-              texel_samples_photon_evidence=overruled, texel_samples_covered=int(covered.sum()))
+              texel_samples_photon_evidence=overruled, texel_samples_covered=int(covered.sum()),
+              texel_samples_in_contact=int(touching.sum()))
     return inside, weights
 
 
@@ -233,7 +238,8 @@ def reached_by_photons(caster: RayCaster, density, p: np.ndarray, n: np.ndarray,
 
 
 def indirect_weights(scene, caster, density, target_index: int, points, inside: np.ndarray, settings, R_min: float,
-                     stream: int, cover: float = 0.0, executor=None, progress=None) -> tuple[np.ndarray, int]:
+                     stream: int, cover: float = 0.0, executor=None, progress=None, contact=None
+                     ) -> tuple[np.ndarray, int]:
     """Each texel sample's share of its texel's indirect light, (n,) float64, and the rays cast.
 
     Samples inside geometry get none. A texel whose samples straddle a solid's boundary (a floor
@@ -244,7 +250,8 @@ def indirect_weights(scene, caster, density, target_index: int, points, inside: 
     or twice it). The share is voted at VALIDITY_FOOTPRINT_PER_AXIS^2 jittered points over the
     footprint Cycles integrates (``settings.direct_footprint_side``), as the samples are
     (:func:`texel_validity`, chunked over ``executor``, one thread if None); ``cover``: as
-    :func:`inside_geometry`'s, points that near under a surface count as inside.
+    :func:`inside_geometry`'s, points that near under a surface count as inside; ``contact``: as
+    :func:`sample_validity`'s, points on a touching face count as inside.
     """
     w = points.weight.astype(np.float64)
     if not inside.any():
@@ -262,6 +269,8 @@ def indirect_weights(scene, caster, density, target_index: int, points, inside: 
         fp_inside, fp_covered, rays = texel_validity(caster, fp, [settings.seed, STREAM_VALIDITY_FOOTPRINT, stream, 1],
                                                      executor if executor is not None else Executor(1), progress,
                                                      cover, open_backs(caster, density, settings.deviations))
+        if contact is not None:  # deviation: contact-faces, docs/DEVIATIONS.md
+            fp_covered |= contact.samples(fp.p, fp.triangle)
         fp_inside, _ = verdict(fp_inside, fp_covered, caster, density, fp.p, fp.n_geometric, R_min, settings)
         fw = fp.weight.astype(np.float64)
         fp_total = np.bincount(fp.texel, weights=fw, minlength=size)

@@ -1,0 +1,121 @@
+"""Texel samples on a face that another face touches, face to face (deviation: contact-faces).
+
+A building standing on a ground plane, a cabinet's back flush against a wall made of one face:
+two faces lie in one plane and face each other. Rays leave a surface :attr:`RayCaster.epsilon`
+off it, so a sample's rays start past the face it touches, in the open beyond (under a ground
+plane: the sky below the horizon), and light reaches it where none can; Cycles' rays leave the
+surface itself and meet the touching face at once. Such samples count as covered
+(:mod:`core.validity`: no indirect light, no sky, no hole record) and get no direct light. A face
+and its own copy turned over (a sheet made two-sided by a flipped duplicate) touch the same way
+but are one surface seen from two sides: they are left alone, as are faces duplicated in place
+facing the same way (bench/coincident.py).
+
+Only triangles whose plane another triangle shares facing the other way are asked: one short ray
+per sample on them, against a BVH of the triangles facing the other way, so a sample's own
+triangle is never in the way.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .rays import RayCaster
+
+CONTACT_EPSILONS = 2.0
+"""How far off a sample's plane (in :attr:`RayCaster.epsilon`, the rays' offset) a touching face may lie."""
+CONTACT_COS = 0.999
+"""A touching face's normal is within 2.6 degrees of the sample's, reversed."""
+NORMAL_STEP = 1e-3
+"""Unit normals are grouped into planes on this grid (faces a few hundredths of a degree apart share one)."""
+_CANONICAL = np.array([0.5773502691896258, 0.5772, 0.5775])
+"""A direction no modelled normal is perpendicular to: the sign of n . it tells a face from its reverse."""
+
+
+class ContactFaces:
+    """The triangles of a scene that may touch another face to face, and the BVHs to test samples on them.
+
+    positions : (T, 3, 3) scene-local corners (``Geometry.positions``); caster : the bake's
+    :class:`RayCaster` over them (its extent, epsilon and face normals).
+    """
+
+    def __init__(self, positions: np.ndarray, caster: RayCaster):
+        self.face_normals = caster.face_normals
+        self.epsilon = caster.epsilon
+        sign, candidate = touching_planes(positions, self.face_normals, CONTACT_EPSILONS * caster.epsilon)
+        self.sign = np.where(candidate, sign, 0).astype(np.int8)
+        """(T,) +1 / -1: the triangle may touch a face of the other sign; 0: it touches none."""
+        self._casters = {}
+        for s in (1, -1):
+            members = np.flatnonzero(self.sign == s)
+            if len(members):
+                self._casters[s] = (members, RayCaster(positions[members], caster.extent))
+
+    @property
+    def any(self) -> bool:
+        return len(self._casters) == 2
+
+    def samples(self, p: np.ndarray, triangle: np.ndarray) -> np.ndarray:
+        """(m,) bool: which samples at p (m, 3) on ``triangle`` (m,) touch another face, face to face."""
+        touching = np.zeros(len(p), bool)
+        if not self.any:
+            return touching
+        for s, (members, caster) in self._casters.items():
+            ask = np.flatnonzero(np.take(self.sign, triangle) == -s)
+            if len(ask) == 0:
+                continue
+            n = np.take(self.face_normals, triangle[ask], axis=0)
+            reach = CONTACT_EPSILONS * self.epsilon
+            hits = caster.intersect(p[ask] - reach * n, n, t_max=2.0 * reach, unit=True)
+            hit = np.flatnonzero(hits.hit)
+            facing = np.einsum("ij,ij->i", np.take(self.face_normals, members[hits.triangle[hit]], axis=0), n[hit])
+            touching[ask[hit[facing < -CONTACT_COS]]] = True
+        return touching
+
+
+def touching_planes(positions: np.ndarray, normals: np.ndarray, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+    """(sign (T,) int8 +1 / -1, candidate (T,) bool): each triangle's orientation against a fixed
+    direction, and whether some triangle of the other orientation lies in its plane (unit normals on a
+    NORMAL_STEP grid, offsets within about ``tolerance``), not counting its own reverse copy."""
+    T = len(positions)
+    sign = np.where(normals @ _CANONICAL >= 0, 1, -1).astype(np.int8)
+    valid = np.einsum("ij,ij->i", normals, normals) > 0.5  # degenerate triangles have no plane
+    if T == 0:
+        return sign, np.zeros(0, bool)
+    canonical = normals * sign[:, None]
+    offset = np.einsum("ij,ij->i", canonical, positions.mean(axis=1))
+    direction = np.round(canonical / NORMAL_STEP).astype(np.int64)
+    candidate = np.zeros(T, bool)
+    scale = max(float(tolerance), 1e-300)
+    for shift in (0.0, 0.5):  # two grids of offsets: a pair astride one grid's step shares the other's
+        keys = np.column_stack([direction, np.floor(offset / scale + shift).astype(np.int64)])
+        candidate |= _both_signs(keys[valid], sign[valid], valid)
+    asked = np.flatnonzero(candidate)  # the rest cannot be a reverse copy of a candidate
+    candidate[asked] = ~_reversed_copies(positions[asked], sign[asked], tolerance)
+    return sign, candidate
+
+
+def _both_signs(keys: np.ndarray, sign: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(T,) bool over all triangles: the ``valid`` ones whose key row another of the other sign shares.
+
+    Rows are hashed to one integer (a 1-D sort is ~20x faster than ``np.unique(axis=0)``): a collision
+    only asks a few more samples, whose ray finds no touching face."""
+    out = np.zeros(len(valid), bool)
+    if len(keys) == 0:
+        return out
+    hashed = np.zeros(len(keys), np.uint64)
+    with np.errstate(over="ignore"):
+        for column in keys.T:
+            hashed = hashed * np.uint64(0x9E3779B97F4A7C15) + column.astype(np.uint64)
+    _, group = np.unique(hashed, return_inverse=True)
+    group = group.ravel()
+    plus = np.bincount(group, weights=(sign > 0).astype(np.float64))
+    minus = np.bincount(group, weights=(sign < 0).astype(np.float64))
+    out[np.flatnonzero(valid)] = (plus[group] > 0) & (minus[group] > 0)
+    return out
+
+
+def _reversed_copies(positions: np.ndarray, sign: np.ndarray, tolerance: float) -> np.ndarray:
+    """(T,) bool: triangles whose three corners (to ``tolerance``) another triangle of the other sign has."""
+    corners = np.round(positions.reshape(-1, 3) / max(float(tolerance), 1e-300)).astype(np.int64)
+    _, vertex = np.unique(corners, axis=0, return_inverse=True)
+    keys = np.sort(vertex.reshape(-1, 3), axis=1)
+    return _both_signs(keys, sign, np.ones(len(positions), bool))
