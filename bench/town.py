@@ -211,7 +211,8 @@ def main(argv=None):
     texels = sum(int(result.centre_inside[ob.name].sum()) for ob in objects)
     print(f"town: {len(objects)} objects, {texels:,} texels at {args.density:g} texels/m; PDIC {args.quality.title()} "
           f"{wall:.1f} s wall, {cpu:.1f} CPU s (unwrap included), records {counters.get('records_total', 0):,}, "
-          f"photons stored {counters.get('photons_stored', 0):,}, sky gathered {counters.get('sky_gathered', 0)}")
+          f"photons stored {counters.get('photons_stored', 0):,}, sky gathered {counters.get('sky_gathered', 0)}; "
+          f"stages (wall s) {', '.join(f'{k} {v:.1f}' for k, v in result.stats.get('seconds', {}).items())}")
     for passes, images in (("DIRECT", result.direct), ("INDIRECT", result.indirect)):
         pairs, covered, seconds = reference(objects, sizes, passes, args.spp, args.bounces, folder)
         print(f"{passes.lower()}: Cycles {args.spp} spp x 2 ({seconds:.0f} s)")
