@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/daylight_room.py [--density 16] [--spp 1024] [--bounces 32] [--out DIR]
         [--direct-samples 16] [--deviations sky_gathering=0] [--glass 0.8] [--competitors 16,64]
-        [--quality PREVIEW]
+        [--quality PREVIEW] [--albedo 0.85 --sun 0 --sky 0 --uplight 500]
 
 Every other bench scene is lit by lamps inside it; an interior lit by daylight through a window is
 what most architectural and game light maps hold. One mesh object (a 6 x 5 x 3 m room with 0.2 m
@@ -81,13 +81,15 @@ def boxes() -> list:
     return shell + south + table + shelf
 
 
-def build(sun_angle: float = 0.0, lamp: float = 0.0, glass: float = 0.0) -> bpy.types.Object:
+def build(sun_angle: float = 0.0, lamp: float = 0.0, glass: float = 0.0, uplight: float = 0.0) -> bpy.types.Object:
     """A factory-fresh file with the room as one object, the sun and the sky; returns the object.
 
     sun_angle : the sun's angular diameter, degrees (0: hard shadows). lamp : watts of a point light
     of Blender's default radius (0.1 m) hanging 0.6 m under the ceiling over the table; 0: none.
     glass : > 0 glazes the window with a 1 cm pane (an object of its own, not baked) of a Principled
-    BSDF of Alpha 1 - glass: each of its two faces passes ``glass`` of the light, in Cycles and PDIC."""
+    BSDF of Alpha 1 - glass: each of its two faces passes ``glass`` of the light, in Cycles and PDIC.
+    uplight : watts of a hard spot light 1 m above the floor aiming straight up at the ceiling (a 90-degree
+    cone): a room lit mostly by light bounced off the ceiling; 0: none."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     world = bpy.data.worlds.new("Sky")
     background = world.node_tree.nodes["Background"]
@@ -118,6 +120,16 @@ def build(sun_angle: float = 0.0, lamp: float = 0.0, glass: float = 0.0) -> bpy.
         lamp_ob = bpy.data.objects.new("Lamp", light)
         lamp_ob.location = (3.0, 2.8, ROOM[2] - 0.6)
         bpy.context.scene.collection.objects.link(lamp_ob)
+    if uplight > 0:
+        light = bpy.data.lights.new("Uplight", "SPOT")
+        light.energy = uplight
+        light.shadow_soft_size = 0.0
+        light.spot_size = math.radians(90.0)
+        light.spot_blend = 0.2
+        up_ob = bpy.data.objects.new("Uplight", light)
+        up_ob.location = (3.0, 2.5, 1.0)
+        up_ob.rotation_euler = (math.pi, 0.0, 0.0)  # a spot shines along its -Z: turned over, up
+        bpy.context.scene.collection.objects.link(up_ob)
     bpy.context.view_layer.update()
     return ob
 
@@ -141,8 +153,8 @@ def digest(ob) -> str:
     mesh.vertices.foreach_get("co", co)
     h = hashlib.sha1(co.tobytes())
     lights = sorted((o.name, o.data.type, o.data.energy, getattr(o.data, "angle", 0.0),
-                     getattr(o.data, "shadow_soft_size", 0.0), tuple(o.location)) for o in bpy.data.objects
-                    if o.type == "LIGHT")
+                     getattr(o.data, "shadow_soft_size", 0.0), tuple(o.location), tuple(o.rotation_euler))
+                    for o in bpy.data.objects if o.type == "LIGHT")
     panes = sorted((o.name, o.active_material.node_tree.nodes["Principled BSDF"].inputs["Alpha"].default_value)
                    for o in bpy.data.objects if o.name.startswith("Pane"))
     h.update(repr((ALBEDO, SUN_STRENGTH, SUN_ELEVATION, WORLD_STRENGTH, lights) + ((panes,) if panes else ())).encode())
@@ -175,6 +187,7 @@ def reference(ob, W: int, H: int, passes: str, spp: int, bounces: int, folder: P
 
 
 def main(argv=None):
+    global ALBEDO, SUN_STRENGTH, WORLD_STRENGTH  # the scene's constants, in the references' digest too
     ap = argparse.ArgumentParser()
     ap.add_argument("--density", type=float, default=16.0, help="texels per metre")
     ap.add_argument("--spp", type=int, default=1024)
@@ -187,13 +200,18 @@ def main(argv=None):
     ap.add_argument("--deviations", default="", help="switches as bench/run.py's, e.g. sky_gathering=0")
     ap.add_argument("--glass", type=float, default=0.0, help="a pane in the window passing this share per face")
     ap.add_argument("--quality", default="FINAL", choices=("PREVIEW", "FINAL"))
+    ap.add_argument("--albedo", type=float, default=ALBEDO, help="the room's grey albedo")
+    ap.add_argument("--sun", type=float, default=SUN_STRENGTH, help="the sun's strength (0: no sun)")
+    ap.add_argument("--sky", type=float, default=WORLD_STRENGTH, help="the sky's strength (0: a black world)")
+    ap.add_argument("--uplight", type=float, default=0.0, help="watts of a spot aiming up at the ceiling")
     ap.add_argument("--competitors", default="", help="Cycles + OIDN at these samples, e.g. 16,64")
     ap.add_argument("--out", default="/tmp/pdic_daylight_room")
     args = ap.parse_args(argv)
     folder = Path(args.out)
     folder.mkdir(parents=True, exist_ok=True)
+    ALBEDO, SUN_STRENGTH, WORLD_STRENGTH = args.albedo, args.sun, args.sky
     pdic_addon.register()
-    ob = build(args.sun_angle, args.lamp, args.glass)
+    ob = build(args.sun_angle, args.lamp, args.glass, args.uplight)
     props = bpy.context.scene.pdic
     props.quality = args.quality
     props.texel_density = args.density
