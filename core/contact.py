@@ -53,6 +53,11 @@ class ContactFaces:
     def any(self) -> bool:
         return len(self._casters) == 2
 
+    @property
+    def rays_cast(self) -> int:
+        """Rays the tests cast so far (statistics: ``contact_rays``)."""
+        return sum(caster.rays_cast for _, caster in self._casters.values())
+
     def samples(self, p: np.ndarray, triangle: np.ndarray) -> np.ndarray:
         """(m,) bool: which samples at p (m, 3) on ``triangle`` (m,) touch another face, face to face."""
         touching = np.zeros(len(p), bool)

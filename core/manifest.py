@@ -56,7 +56,9 @@ Schema (``schema_version`` 1)
     covered texels wholly or partly inside closed geometry, e.g. under a wall or cut by its face;
     with the buried-texels deviation on, docs/DEVIATIONS.md, they hold their whole neighbours' light).
     Texel validity: ``texel_samples_inside_geometry`` (int, samples given no indirect light),
-    of them ``texel_samples_covered`` (int, samples under a sheet nearer than a tenth of a texel),
+    of them ``texel_samples_covered`` (int, samples under a sheet nearer than a tenth of a texel,
+    or on a face another touches face to face: ``texel_samples_in_contact``, int, deviation
+    contact-faces, whose tests cast ``contact_rays``, int; such samples get no direct light either),
     and ``texel_samples_photon_evidence`` (int, back-face votes a photon overruled),
     ``validity_rays`` (int); a bake without indirect light votes only on unlit samples near lit
     texels, to bury texels for the light map. Pass 3: ``refine_gap_hits`` (int, gathering hits

@@ -219,6 +219,8 @@ def _check_scene(scene: Scene) -> None:
 def _finish(run: "_Run", result: BakeResult) -> BakeResult:
     stats = run.stats
     stats.set(rays_cast=run._caster.rays_cast if run._caster is not None else 0)
+    if run._contact is not None:  # deviation: contact-faces (its BVHs count their own rays)
+        stats.set(contact_rays=run._contact.rays_cast)
     stats.set(photon_rays=stats.counters.get("photon_rays", 0))
     stats.set(**run.store.counters())
     result.stats = stats.as_dict()

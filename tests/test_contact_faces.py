@@ -38,7 +38,8 @@ def test_a_box_bottom_on_the_ground_gets_no_light_and_a_two_sided_sheet_keeps_bo
     off = bake(scene, replace(FINAL, deviations=Deviations(contact_faces=False)))
     inside = on.centre_inside["bottom"]
     assert on.stats["counters"]["texel_samples_in_contact"] >= inside.sum()
-    assert off.stats["counters"]["texel_samples_in_contact"] == 0
+    assert off.stats["counters"]["texel_samples_in_contact"] == 0 and "contact_rays" not in off.stats["counters"]
+    assert on.stats["counters"]["contact_rays"] >= on.stats["counters"]["texel_samples_in_contact"]
     assert off.direct["bottom"][inside].mean() > 0.2  # the sky below the ground, through the offset
     assert np.all(on.direct["bottom"][inside] == 0) and np.all(on.indirect["bottom"][inside] == 0)
     assert np.all(on.as_cycles("bottom")[inside] == 0)
