@@ -5,14 +5,17 @@ two faces lie in one plane and face each other. Rays leave a surface :attr:`RayC
 off it, so a sample's rays start past the face it touches, in the open beyond (under a ground
 plane: the sky below the horizon), and light reaches it where none can; Cycles' rays leave the
 surface itself and meet the touching face at once. Such samples count as covered
-(:mod:`core.validity`: no indirect light, no sky, no hole record) and get no direct light. A face
-and its own copy turned over (a sheet made two-sided by a flipped duplicate) touch the same way
-but are one surface seen from two sides: they are left alone, as are faces duplicated in place
-facing the same way (bench/coincident.py).
+(:mod:`core.validity`: no indirect light, no sky, no hole record) and get no direct light.
+
+Only a face that is the skin of a solid counts (a ray from the sample into its back meets a back
+face, the solid's inside): two open sheets back to back, a wall of two faces each lit by its own
+room, touch the same way but are one surface seen from two sides, and Cycles darkening both is its
+self-intersection rule, not light (as for faces duplicated in place, bench/coincident.py); so are a
+face and its own copy turned over (a sheet made two-sided by a flipped duplicate).
 
 Only triangles whose plane another triangle shares facing the other way are asked: one short ray
 per sample on them, against a BVH of the triangles facing the other way, so a sample's own
-triangle is never in the way.
+triangle is never in the way, and one ray into the back of those that touch.
 """
 from __future__ import annotations
 
@@ -38,7 +41,10 @@ class ContactFaces:
     """
 
     def __init__(self, positions: np.ndarray, caster: RayCaster):
+        self.caster = caster
         self.face_normals = caster.face_normals
+        self.solid_rays = 0
+        """The skin tests' rays (the touch tests' are counted by their BVHs)."""
         self.epsilon = caster.epsilon
         sign, candidate = touching_planes(positions, self.face_normals, CONTACT_EPSILONS * caster.epsilon)
         self.sign = np.where(candidate, sign, 0).astype(np.int8)
@@ -56,10 +62,15 @@ class ContactFaces:
     @property
     def rays_cast(self) -> int:
         """Rays the tests cast so far (statistics: ``contact_rays``)."""
-        return sum(caster.rays_cast for _, caster in self._casters.values())
+        return self.solid_rays + sum(caster.rays_cast for _, caster in self._casters.values())
 
     def samples(self, p: np.ndarray, triangle: np.ndarray) -> np.ndarray:
-        """(m,) bool: which samples at p (m, 3) on ``triangle`` (m,) touch another face, face to face."""
+        """(m,) bool: which samples at p (m, 3) on ``triangle`` (m,) touch another face, face to face, on
+        a face that is the skin of a solid."""
+        return self._skin(p, triangle, self._touch(p, triangle))
+
+    def _touch(self, p: np.ndarray, triangle: np.ndarray) -> np.ndarray:
+        """(m,) bool: which points p (m, 3) on ``triangle`` (m,) another face touches, face to face."""
         touching = np.zeros(len(p), bool)
         if not self.any:
             return touching
@@ -75,11 +86,34 @@ class ContactFaces:
             touching[ask[hit[facing < -CONTACT_COS]]] = True
         return touching
 
+    def _skin(self, p: np.ndarray, triangle: np.ndarray, touching: np.ndarray) -> np.ndarray:
+        """``touching`` (m,) less the samples whose face bounds no solid: a ray into the face's back meets
+        no back face (it leaves into open space or meets another room's front faces). Where the ray meets
+        two faces that touch (a pillar's bottom on the ground, seen from inside the pillar), it meets the
+        back face among them, whichever of the two Embree reports."""
+        ask = np.flatnonzero(touching)
+        if len(ask) == 0:
+            return touching
+        n = np.take(self.face_normals, triangle[ask], axis=0)
+        hits = self.caster.serial().intersect(p[ask], -n, normals=n, unit=True)
+        self.solid_rays += len(ask)
+        hit = np.flatnonzero(hits.hit)
+        inside = np.zeros(len(ask), bool)
+        back = np.einsum("ij,ij->i", np.take(self.face_normals, hits.triangle[hit], axis=0), n[hit]) < 0
+        inside[hit[back]] = True
+        front = hit[~back]
+        if len(front):
+            q = p[ask[front]] - n[front] * hits.t[front, None]
+            inside[front] = self._touch(q, hits.triangle[front])
+        touching = touching.copy()
+        touching[ask[~inside]] = False
+        return touching
+
 
 def touching_planes(positions: np.ndarray, normals: np.ndarray, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
     """(sign (T,) int8 +1 / -1, candidate (T,) bool): each triangle's orientation against a fixed
     direction, and whether some triangle of the other orientation lies in its plane (unit normals on a
-    NORMAL_STEP grid, offsets within about ``tolerance``), not counting its own reverse copy."""
+    NORMAL_STEP grid, offsets within about ``tolerance``)."""
     T = len(positions)
     sign = np.where(normals @ _CANONICAL >= 0, 1, -1).astype(np.int8)
     valid = np.einsum("ij,ij->i", normals, normals) > 0.5  # degenerate triangles have no plane
@@ -93,8 +127,6 @@ def touching_planes(positions: np.ndarray, normals: np.ndarray, tolerance: float
     for shift in (0.0, 0.5):  # two grids of offsets: a pair astride one grid's step shares the other's
         keys = np.column_stack([direction, np.floor(offset / scale + shift).astype(np.int64)])
         candidate |= _both_signs(keys[valid], sign[valid], valid)
-    asked = np.flatnonzero(candidate)  # the rest cannot be a reverse copy of a candidate
-    candidate[asked] = ~_reversed_copies(positions[asked], sign[asked], tolerance)
     return sign, candidate
 
 
@@ -117,10 +149,3 @@ def _both_signs(keys: np.ndarray, sign: np.ndarray, valid: np.ndarray) -> np.nda
     out[np.flatnonzero(valid)] = (plus[group] > 0) & (minus[group] > 0)
     return out
 
-
-def _reversed_copies(positions: np.ndarray, sign: np.ndarray, tolerance: float) -> np.ndarray:
-    """(T,) bool: triangles whose three corners (to ``tolerance``) another triangle of the other sign has."""
-    corners = np.round(positions.reshape(-1, 3) / max(float(tolerance), 1e-300)).astype(np.int64)
-    _, vertex = np.unique(corners, axis=0, return_inverse=True)
-    keys = np.sort(vertex.reshape(-1, 3), axis=1)
-    return _both_signs(keys, sign, np.ones(len(positions), bool))

@@ -66,11 +66,9 @@ def test_a_bake_without_indirect_light_buries_them_too():
     """Direct light alone (Passes: Indirect off): the texels the wall cuts or covers within the dilation's
     reach of the lit floor are buried, and the light map fills the wall's foot from the open floor;
     Cycles' convention (``as_cycles``) keeps the cut texel dim. Only unlit samples that near the lit
-    floor are voted on. (The wall box's bottom lies on the floor: the floor under it touches it face to
-    face, which buries it all, deviation: contact-faces; off here, on at the end.)"""
+    floor are voted on."""
     wall_x = -2 + (COLUMN + 0.5 + 0.125) * TEXEL
-    result = pipeline.bake(_scene(wall_x), preset("FINAL", indirect=False, threads=1,
-                                                  deviations=Deviations(contact_faces=False)))
+    result = pipeline.bake(_scene(wall_x), preset("FINAL", indirect=False, threads=1))
     counters = result.stats["counters"]
     buried = result.buried["Floor"]
     # The last lit texels are COLUMN - 1's (the cut one holds its footprint's mean at every sample).
@@ -80,17 +78,6 @@ def test_a_bake_without_indirect_light_buries_them_too():
     # The cut column's two inside samples per row and the RINGS - 1 columns past it, 2x2 each.
     assert counters["texel_samples_inside_geometry"] == 2 * RES + 4 * (RINGS - 1) * RES
     assert "photons_emitted" not in counters
-    # With contact-faces every texel under the wall is buried, past the votes' reach too (the votes are the
-    # same): the dilation fills all RINGS columns from the open floor, as with indirect light, not only
-    # those whose neighbours past the reach were not buried; deeper ones stay empty.
-    touching = pipeline.bake(_scene(wall_x), preset("FINAL", indirect=False, threads=1))
-    assert touching.buried["Floor"][:, COLUMN:].all() and not touching.buried["Floor"][:, :COLUMN].any()
-    assert touching.stats["counters"]["validity_rays"] == counters["validity_rays"]
-    assert touching.stats["counters"]["texel_samples_in_contact"] > 0
-    lit = touching.lightmaps["Floor"][ROW, :, :3].mean(axis=1)
-    np.testing.assert_array_equal(touching.lightmaps["Floor"][:, :COLUMN], result.lightmaps["Floor"][:, :COLUMN])
-    assert lit[COLUMN + RINGS - 1] == pytest.approx(lit[COLUMN - 1], rel=0.05)
-    assert (touching.lightmaps["Floor"][ROW, COLUMN + RINGS:, 3] == 0).all()
     lit = result.lightmaps["Floor"][ROW, :, :3].mean(axis=1)
     as_cycles = result.as_cycles("Floor")[ROW].mean(axis=1)
     assert 0.6 < as_cycles[COLUMN] / as_cycles[COLUMN - 1] < 0.95
