@@ -186,6 +186,25 @@ def reference(ob, W: int, H: int, passes: str, spp: int, bounces: int, folder: P
     return pair[0], pair[1], seconds
 
 
+def bake_job(args, folder: Path, **overrides):
+    """PDIC at ``args.quality``, ``args.density`` texels per metre, ``args.seed``, ``args.threads`` and
+    ``args.deviations`` (and BakeSettings ``overrides``) through the add-on's BakeJob, with a fresh bake
+    cache and the unwraps cached in ``folder``: (the job, wall seconds, CPU seconds, the unwrap included)."""
+    props = bpy.context.scene.pdic
+    props.quality = args.quality
+    props.texel_density = args.density
+    props.seed = args.seed
+    props.image_format = "EXR_FLOAT"
+    settings = replace(with_deviations(to_settings(props, threads=args.threads), args.deviations), **overrides)
+    t, cpu = time.perf_counter(), time.process_time()
+    job = job_module.BakeJob(bpy.context, settings, output_folder=str(folder / "maps"),
+                             cache_dir=folder / "unwrap_cache")
+    with tempfile.TemporaryDirectory() as fresh:
+        job.bake_cache_dir = Path(fresh)  # a bake, not the add-on's bake cache from an earlier run
+        job.run()
+    return job, time.perf_counter() - t, time.process_time() - cpu
+
+
 def main(argv=None):
     global ALBEDO, SUN_STRENGTH, WORLD_STRENGTH  # the scene's constants, in the references' digest too
     ap = argparse.ArgumentParser()
@@ -212,21 +231,7 @@ def main(argv=None):
     ALBEDO, SUN_STRENGTH, WORLD_STRENGTH = args.albedo, args.sun, args.sky
     pdic_addon.register()
     ob = build(args.sun_angle, args.lamp, args.glass, args.uplight)
-    props = bpy.context.scene.pdic
-    props.quality = args.quality
-    props.texel_density = args.density
-    props.seed = args.seed
-    props.image_format = "EXR_FLOAT"
-    settings = with_deviations(to_settings(props, threads=args.threads), args.deviations)
-    if args.direct_samples:
-        settings = replace(settings, direct_samples=args.direct_samples)
-    t, cpu = time.perf_counter(), time.process_time()
-    job = job_module.BakeJob(bpy.context, settings, output_folder=str(folder / "maps"),
-                             cache_dir=folder / "unwrap_cache")
-    with tempfile.TemporaryDirectory() as fresh:
-        job.bake_cache_dir = Path(fresh)  # a bake, not the add-on's bake cache from an earlier run
-        job.run()
-    wall, cpu = time.perf_counter() - t, time.process_time() - cpu
+    job, wall, cpu = bake_job(args, folder, **({"direct_samples": args.direct_samples} if args.direct_samples else {}))
     result = job.result
     writeback.set_shading([ob], baked=False)  # Cycles must bake the room's own material, not the light map
     name = ob.name

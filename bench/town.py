@@ -24,9 +24,7 @@ import argparse
 import hashlib
 import math
 import sys
-import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -43,12 +41,10 @@ import bpy  # noqa: E402
 import cycles_reference as cr  # noqa: E402
 from bench.competitors import (clocked, cycles_bake, denoise, errors, set_cycles_threads,  # noqa: E402
                                warm_up_denoisers)
-from bench.run import with_deviations  # noqa: E402
+from bench.daylight_room import bake_job  # noqa: E402
 from bench.scenes import boxes_mesh  # noqa: E402
 from pdic import pdic_addon  # noqa: E402
-from pdic.pdic_addon import job as job_module  # noqa: E402
 from pdic.pdic_addon import writeback  # noqa: E402
-from pdic.pdic_addon.properties import to_settings  # noqa: E402
 from pdic.pdic_addon.uvmaps import LIGHTMAP_UV  # noqa: E402
 
 GROUND = 100.0
@@ -191,19 +187,7 @@ def main(argv=None):
     folder.mkdir(parents=True, exist_ok=True)
     pdic_addon.register()
     objects = build()
-    props = bpy.context.scene.pdic
-    props.quality = args.quality
-    props.texel_density = args.density
-    props.seed = args.seed
-    props.image_format = "EXR_FLOAT"
-    settings = with_deviations(to_settings(props, threads=args.threads), args.deviations)
-    t, cpu = time.perf_counter(), time.process_time()
-    job = job_module.BakeJob(bpy.context, settings, output_folder=str(folder / "maps"),
-                             cache_dir=folder / "unwrap_cache")
-    with tempfile.TemporaryDirectory() as fresh:
-        job.bake_cache_dir = Path(fresh)  # a bake, not the add-on's bake cache from an earlier run
-        job.run()
-    wall, cpu = time.perf_counter() - t, time.process_time() - cpu
+    job, wall, cpu = bake_job(args, folder)
     result = job.result
     writeback.set_shading(objects, baked=False)  # Cycles bakes the objects' own materials
     sizes = {ob.name: result.direct[ob.name].shape[1::-1] for ob in objects}
