@@ -49,6 +49,7 @@ from bench.competitors import (clocked, cycles_bake, denoise, errors, set_cycles
                                texel_geometry, warm_up_denoisers)
 from bench.run import with_deviations  # noqa: E402
 from test_cathedral_direct_vs_cycles import _diffuse_material  # noqa: E402
+from test_direct_vs_cycles import _world  # noqa: E402
 from pdic import pdic_addon  # noqa: E402
 from pdic.pdic_addon import job as job_module  # noqa: E402
 from pdic.pdic_addon import writeback  # noqa: E402
@@ -91,11 +92,7 @@ def build(sun_angle: float = 0.0, lamp: float = 0.0, glass: float = 0.0, uplight
     uplight : watts of a hard spot light 1 m above the floor aiming straight up at the ceiling (a 90-degree
     cone): a room lit mostly by light bounced off the ceiling; 0: none."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    world = bpy.data.worlds.new("Sky")
-    background = world.node_tree.nodes["Background"]
-    background.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
-    background.inputs["Strength"].default_value = WORLD_STRENGTH
-    bpy.context.scene.world = world
+    _world(bpy, (1.0, 1.0, 1.0), WORLD_STRENGTH)
     mesh = boxes_mesh("Room", boxes())
     mesh.materials.append(_diffuse_material(bpy, "Plaster", ALBEDO))
     ob = bpy.data.objects.new("Room", mesh)

@@ -34,6 +34,7 @@ import bpy  # noqa: E402
 import cycles_reference as cr  # noqa: E402
 from bench.competitors import SceneSpec, errors, load_scene  # noqa: E402
 from bench.run import interior_texels  # noqa: E402
+from test_direct_vs_cycles import _world  # noqa: E402
 from pdic import pdic_addon  # noqa: E402
 from pdic.core.pipeline import bake  # noqa: E402
 from pdic.core.scene import World  # noqa: E402
@@ -45,11 +46,7 @@ def open_sky(scene):
     """The Blender file and the core scene without lamps, under a white world of strength 1."""
     for light in [o for o in bpy.data.objects if o.type == "LIGHT"]:
         bpy.data.objects.remove(light)
-    world = bpy.data.worlds.new("Sky")
-    bpy.context.scene.world = world
-    background = world.node_tree.nodes["Background"]
-    background.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
-    background.inputs["Strength"].default_value = 1.0
+    _world(bpy, (1.0, 1.0, 1.0), 1.0)
     return replace(scene, lights=(), world=World(np.ones(3)))
 
 

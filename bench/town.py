@@ -43,6 +43,8 @@ from bench.competitors import (clocked, cycles_bake, denoise, errors, set_cycles
                                warm_up_denoisers)
 from bench.daylight_room import bake_job  # noqa: E402
 from bench.scenes import boxes_mesh  # noqa: E402
+from test_cathedral_direct_vs_cycles import _diffuse_material  # noqa: E402
+from test_direct_vs_cycles import _world  # noqa: E402
 from pdic import pdic_addon  # noqa: E402
 from pdic.pdic_addon import writeback  # noqa: E402
 from pdic.pdic_addon.uvmaps import LIGHTMAP_UV  # noqa: E402
@@ -88,38 +90,19 @@ def layout(seed: int = 7) -> list:
     return out
 
 
-def _material(name: str, albedo) -> bpy.types.Material:
-    """One Diffuse BSDF of ``albedo`` (every object its own material: Cycles bakes them in one call)."""
-    material = bpy.data.materials.new(name)
-    if material.node_tree is None:
-        material.use_nodes = True
-    nodes = material.node_tree.nodes
-    for node in [n for n in nodes if n.type != "OUTPUT_MATERIAL"]:
-        nodes.remove(node)
-    diffuse = nodes.new("ShaderNodeBsdfDiffuse")
-    diffuse.inputs["Color"].default_value = (*albedo, 1.0)
-    output = next(n for n in nodes if n.type == "OUTPUT_MATERIAL")
-    material.node_tree.links.new(diffuse.outputs["BSDF"], output.inputs["Surface"])
-    return material
-
-
 def build() -> list:
     """A factory-fresh file with the town, the sun and the sky; returns the mesh objects."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    world = bpy.data.worlds.new("Sky")
-    background = world.node_tree.nodes["Background"]
-    background.inputs["Color"].default_value = (*WORLD_COLOUR, 1.0)
-    background.inputs["Strength"].default_value = WORLD_STRENGTH
-    bpy.context.scene.world = world
+    _world(bpy, WORLD_COLOUR, WORLD_STRENGTH)
     objects = []
     g = GROUND / 2
     ground = bpy.data.meshes.new("Ground")
     ground.from_pydata([(-g, -g, 0), (g, -g, 0), (g, g, 0), (-g, g, 0)], [], [(0, 1, 2, 3)])
-    ground.materials.append(_material("GroundMat", (0.4, 0.4, 0.38)))
+    ground.materials.append(_diffuse_material(bpy, "GroundMat", (0.4, 0.4, 0.38)))
     objects.append(bpy.data.objects.new("Ground", ground))
     for name, boxes, albedo in layout():
         mesh = boxes_mesh(name, boxes)
-        mesh.materials.append(_material(name + "Mat", albedo))
+        mesh.materials.append(_diffuse_material(bpy, name + "Mat", albedo))  # one each: one Cycles call
         objects.append(bpy.data.objects.new(name, mesh))
     for ob in objects:
         bpy.context.scene.collection.objects.link(ob)

@@ -69,8 +69,8 @@ def build_cathedral_scene(bpy, detail: float = DETAIL):
     return ob
 
 
-def _diffuse_material(bpy, name: str, albedo: float):
-    """A node material whose surface is one Diffuse BSDF of grey ``albedo``."""
+def _diffuse_material(bpy, name: str, albedo):
+    """A node material whose surface is one Diffuse BSDF of ``albedo``: a grey level or an RGB triple."""
     material = bpy.data.materials.new(name)
     if material.node_tree is None:  # Blender 5.0 gives every material a tree and deprecates use_nodes
         material.use_nodes = True
@@ -78,7 +78,7 @@ def _diffuse_material(bpy, name: str, albedo: float):
     for node in [n for n in nodes if n.type != "OUTPUT_MATERIAL"]:
         nodes.remove(node)
     diffuse = nodes.new("ShaderNodeBsdfDiffuse")
-    diffuse.inputs["Color"].default_value = (albedo, albedo, albedo, 1.0)
+    diffuse.inputs["Color"].default_value = (*np.broadcast_to(albedo, 3), 1.0)
     output = next(n for n in nodes if n.type == "OUTPUT_MATERIAL")
     material.node_tree.links.new(diffuse.outputs["BSDF"], output.inputs["Surface"])
     return material
