@@ -44,6 +44,8 @@ use 0 for pass 3, 1 for the hole records."""
 STREAM_SKY = 6
 """Preview's records' own sky rays (deviation: sky-gathering), ``[seed, 6, use, batch]``: use 0 for pass 2's
 records, 1 + r for hole records of round r."""
+STREAM_CREVICE_REFINE = 31
+"""Final gathering at crevice texel points (deviation: crevice-records), ``[seed, 31, batch]``."""
 STREAM_DENSITY_CONTROL = 5
 """Section 3.4 density control: which stored photons are discarded, ``[seed, 5]``."""
 STREAM_CHR99_SUBSAMPLE = 99
@@ -274,5 +276,17 @@ Russian roulette on the albedo ends sooner (at albedo 0.8, 5 on average); 1 read
 first vertex whatever it meets."""
 GAP_WALK_SURVIVAL = 0.05
 """Least survival probability of a gap walk's Russian roulette (a throughput gain of at most 20)."""
+CREVICE_RAYS = 5
+"""Rays per texel sample whose harmonic mean distance tells a crevice (deviation: crevice-records,
+core/crevice_records.py): one along the normal, the rest evenly round a cone of CREVICE_CONE degrees."""
+CREVICE_CONE = 60.0
+"""Their cone: under a plane h above, the pattern's harmonic mean distance is 5/3 h (a cosine-weighted
+one's 1.5 h)."""
+CREVICE_DISTANCE = 1.0
+"""A texel sample whose rays' harmonic mean distance is below this many a R_min (the narrowest zone) lies in
+a crevice and gathers its own record. Measured 0.5-2 (docs/DEVIATIONS.md crevice-records): past 1 the
+samples' gathering noise costs the Cornell box its gain and Sponza at 16 texels/m 8 s."""
+CREVICE_HEMISPHERE = (8, 16)
+"""Cells (theta, phi) of a crevice sample's gathering hemisphere, a quarter of pass 3's, gathered once."""
 HIT_GRID_DIRECT_SAMPLES = 4
 """Shadow-ray samples per soft light at each grid cell (hits read the grid, so its noise is shared)."""

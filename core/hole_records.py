@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .constants import (FINE_ZONE_TEXELS, GAP_TEXELS, NEAREST_RECORDS, STREAM_HOLE_ORDER, STREAM_REFINE_HOLES,
-                        STREAM_SKY)
+from .constants import FINE_ZONE_TEXELS, GAP_TEXELS, NEAREST_RECORDS, STREAM_HOLE_ORDER, STREAM_REFINE_HOLES, STREAM_SKY
+from .crevice_records import crevice_irradiance, crevice_samples
 from .density import PhotonDensity
 from .executor import Executor, Progress
 from .interpolation import interpolate, texel_values
@@ -48,6 +48,13 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
     inside, weights = sample_validity(scene, caster, density, target_index, points, texel_size, stream, params.R_min,
                                       settings, executor, progress, stats, contact=contact)
     valid = np.flatnonzero(~inside)
+    crevice, rays = np.zeros(0, np.int64), 0
+    if sources is not None and settings.deviations.crevice_records:  # deviation: crevice-records
+        progress.begin("Texel samples in crevices")
+        found, rays = crevice_samples(caster, points.p[valid], points.n_geometric[valid], params, executor, progress)
+        crevice = valid[found]
+        valid = np.setdiff1d(valid, crevice, assume_unique=True)
+    crevice_counters = {"crevice_samples": len(crevice), "crevice_distance_rays": rays}
     progress.begin("Interpolating the cache at texels")
     with stats.stage("interpolate"):
         valid_points = points.take(valid)
@@ -62,8 +69,13 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
                                          caster=_record_visibility(caster, params), sky=sky is not None)
             covered = w_fine > 0
             E[valid[fine[covered]]] = E_fine[covered]
+        if len(crevice):
+            progress.begin(f"Gathering at {len(crevice):,} texel samples in crevices")
+            E[crevice], refined = crevice_irradiance(scene, caster, sources, points.p[crevice],
+                                                     points.n_shading[crevice], params, settings, executor, progress)
+            crevice_counters.update({f"crevice_{key}": value for key, value in refined.items()})
     stats.add(texel_points_interpolated=len(merged) + len(fine), texel_points_unfilled=filled.unfilled,
-              **{f"holes_{key}": value for key, value in filled.counters.items()})
+              **{f"holes_{key}": value for key, value in filled.counters.items()}, **crevice_counters)
     return E, filled.cache.take(slice(len(cache), None)), weights
 
 

@@ -63,7 +63,10 @@ Schema (``schema_version`` 1)
     ``validity_rays`` (int); a bake without indirect light votes only on unlit samples near lit
     texels, to bury texels for the light map. Pass 3: ``refine_gap_hits`` (int, gathering hits
     in a gap before their record's surface that gathered their own indirect light, deviation
-    gap-gathering; ``holes_refine_gap_hits`` for the hole records).
+    gap-gathering; ``holes_refine_gap_hits`` for the hole records). Deviation crevice-records:
+    ``crevice_samples`` (int, texel samples in crevices that gathered a record of their own),
+    ``crevice_distance_rays`` (int, the rays cast to tell them, five per valid sample) and
+    ``crevice_refine_*`` (their gathering, as ``refine_*``).
 ``warnings`` : list of str
     Everything the bake reported but did not stop for (skipped objects, clamped
     values, degenerate triangles).

@@ -99,6 +99,10 @@ class Deviations:
     """Texel samples on a face another face touches face to face (a building's bottom on a ground plane, a
     cabinet's back flush against a one-face wall) get no light, as in Cycles: their rays would start past
     the touching face (core/contact.py). Off: they are lit from beyond it."""
+    crevice_records: bool = True
+    """Final: a texel sample whose surroundings stand nearer than a zone (tracery 2 cm before its wall, the
+    crease under an overhang, a corner) gathers a record of its own and takes its E_k instead of Equation 3's
+    (core/crevice_records.py)."""
     sky_gathering: bool = True
     """The world's light reaches the texels through the records (Final: their gathering rays that escape
     read it; Preview: rays of their own; Equation 3 interpolates it with its own gradients) instead of

@@ -45,6 +45,7 @@ def reused():
     ("wall_sectors", "refine_wall_rays", False),
     ("adaptive_gathering", "refine_extra_gathers", False),
     ("gathered_radius", "refine_wall_rays", False),
+    ("crevice_records", "crevice_samples", False),
 ])
 def test_a_deviation_switched_off_casts_none_of_its_rays(default, reused, switch, counter, reuse):
     assert (reused if reuse else default)[1][counter] > 0
