@@ -22,7 +22,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from .constants import CREVICE_CONE, CREVICE_DISTANCE, CREVICE_HEMISPHERE, CREVICE_RAYS, STREAM_CREVICE_REFINE
+from .constants import (CREVICE_CONE, CREVICE_DISTANCE, CREVICE_HEMISPHERE, CREVICE_OFFSETS, CREVICE_RAYS,
+                        STREAM_CREVICE_REFINE)
 from .executor import TEXEL_CHUNK, slices
 from .irradiance_cache import IrradianceCache, Zones
 from .refinement import refine_records
@@ -56,14 +57,20 @@ def local_distance(caster, p: np.ndarray, n: np.ndarray) -> np.ndarray:
 
 def crevice_samples(caster, p: np.ndarray, n: np.ndarray, params, executor, progress) -> tuple[np.ndarray, int]:
     """(indices of the points p facing n (m, 3) that lie in crevices: :func:`local_distance` below
-    CREVICE_DISTANCE x a R_min; rays cast), chunked over the executor."""
+    CREVICE_DISTANCE x a R_min, but not below CREVICE_OFFSETS ray offsets; rays cast), chunked over the
+    executor.
+
+    A surface within two offsets of the point is nearer than its gathering rays can tell: they leave
+    the surface an offset off it (Sponza held: 159 such samples gathered 2.9-3.6 E/pi where a path
+    tracer finds 0.1-1.9); those keep Equation 3."""
     serial = caster.serial()
     parts = executor.map_chunks(lambda index, s: local_distance(serial, p[s], n[s]), slices(len(p), TEXEL_CHUNK),
                                 progress)
     distance = np.concatenate(parts) if parts else np.zeros(0)
     rays = len(p) * CREVICE_RAYS
     caster.rays_cast += rays
-    return np.flatnonzero(distance < CREVICE_DISTANCE * params.a * params.R_min), rays
+    near = (distance < CREVICE_DISTANCE * params.a * params.R_min) & (distance >= CREVICE_OFFSETS * caster.epsilon)
+    return np.flatnonzero(near), rays
 
 
 def crevice_irradiance(scene, caster, sources, p: np.ndarray, n: np.ndarray, params, settings, executor,
