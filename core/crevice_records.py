@@ -14,7 +14,8 @@ record that finds itself inside geometry (record-validity, its rays mostly meeti
 eight vote rays of texel validity said otherwise) leaves its sample dark.
 
 The test is the harmonic mean distance of a few rays from the sample, the quantity R_k is (Figure
-3): below CREVICE_DISTANCE x a R_min the sample lies in a crevice.
+3): below CREVICE_DISTANCE x a R_min the sample lies in a crevice, unless it is below CREVICE_OFFSETS
+ray offsets, nearer than the record's own rays can tell (:func:`crevice_samples`).
 """
 from __future__ import annotations
 

@@ -6,7 +6,8 @@ samples still uncovered get new records placed on them (Algorithm 1's hole entry
 quality; HOLE_ROUNDS rounds of that (deviation: hole-rounds), then the nearest record's
 irradiance for what is still uncovered (deviation: nearest-record-fallback). A record off a
 sample's tangent plane counts only if it sees the sample, in every lookup and in the fallback
-(deviation: record-visibility).
+(deviation: record-visibility). At Final, samples in crevices gather records of their own
+instead of all of this (deviation: crevice-records, :mod:`core.crevice_records`).
 """
 from __future__ import annotations
 
@@ -48,15 +49,16 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
     inside, weights = sample_validity(scene, caster, density, target_index, points, texel_size, stream, params.R_min,
                                       settings, executor, progress, stats, contact=contact)
     valid = np.flatnonzero(~inside)
-    crevice, rays = np.zeros(0, np.int64), 0
-    if sources is not None and settings.deviations.crevice_records:  # deviation: crevice-records
-        progress.begin("Texel samples in crevices")
-        found, rays = crevice_samples(caster, points.p[valid], points.n_geometric[valid], params, executor, progress)
-        crevice = valid[found]
-        valid = np.setdiff1d(valid, crevice, assume_unique=True)
-    crevice_counters = {"crevice_samples": len(crevice), "crevice_distance_rays": rays}
-    progress.begin("Interpolating the cache at texels")
     with stats.stage("interpolate"):
+        crevice, rays = np.zeros(0, np.int64), 0
+        if sources is not None and settings.deviations.crevice_records:  # deviation: crevice-records
+            progress.begin("Texel samples in crevices")
+            found, rays = crevice_samples(caster, points.p[valid], points.n_geometric[valid], params, executor,
+                                          progress)
+            crevice = valid[found]
+            valid = np.setdiff1d(valid, crevice, assume_unique=True)
+        crevice_counters = {"crevice_samples": len(crevice), "crevice_distance_rays": rays}
+        progress.begin("Interpolating the cache at texels")
         valid_points = points.take(valid)
         merged, sample_to_point = valid_points.per_texel()  # inside samples are not averaged in
         filled = fill_holes(scene, caster, density, sources, cache, merged, params, settings, executor, progress,
