@@ -26,6 +26,7 @@ import numpy as np
 from .constants import (CREVICE_CONE, CREVICE_DISTANCE, CREVICE_HEMISPHERE, CREVICE_OFFSETS, CREVICE_RAYS,
                         STREAM_CREVICE_REFINE)
 from .executor import TEXEL_CHUNK, slices
+from .interpolation import texel_values
 from .irradiance_cache import IrradianceCache, Zones
 from .refinement import refine_records
 from .sampling import to_world
@@ -91,5 +92,4 @@ def crevice_irradiance(scene, caster, sources, p: np.ndarray, n: np.ndarray, par
                   deviations=replace(settings.deviations, gathered_radius=False, adaptive_gathering=False))
     refined, counters = refine_records(scene, caster, sources, records, Zones([np.zeros(0, np.int32)] * m), own,
                                        params, executor, progress, stream=STREAM_CREVICE_REFINE)
-    E = refined.E if sources.sky is None else np.concatenate([refined.E, refined.E_sky], axis=1)
-    return E, counters
+    return texel_values(refined, sources.sky is not None)[0], counters

@@ -67,6 +67,16 @@ def box_faces() -> list:
             quad([0, 0, 0], [0, 1, 0], [0, 0, 1]), quad([1, 0, 0], [0, 0, 1], [0, 1, 0])]
 
 
+def closed_box(lo, hi) -> list:
+    """The six faces of the axis-aligned box [lo, hi] as quads, normals outward: bottom, top, front (-y),
+    back (+y), left (-x), right (+x)."""
+    (x0, y0, z0), (x1, y1, z1) = lo, hi
+    X, Y, Z = x1 - x0, y1 - y0, z1 - z0
+    return [quad([x0, y0, z0], [0, Y, 0], [X, 0, 0]), quad([x0, y0, z1], [X, 0, 0], [0, Y, 0]),
+            quad([x0, y0, z0], [X, 0, 0], [0, 0, Z]), quad([x0, y1, z0], [0, 0, Z], [X, 0, 0]),
+            quad([x0, y0, z0], [0, 0, Z], [0, Y, 0]), quad([x1, y0, z0], [0, Y, 0], [0, 0, Z])]
+
+
 BOX_LAMP = PointLight("lamp", np.array([0.5, 0.5, 0.8]), np.full(3, 100.0))
 """A 100 W point light under the ceiling of :func:`box_faces`' unit box (world space)."""
 

@@ -14,20 +14,14 @@ from pdic.core import pipeline
 from pdic.core.scene import BakeTarget, Materials, PointLight, Scene, recentre
 from pdic.core.settings import Deviations, preset
 
-from scenes import geometry, quad
+from scenes import closed_box, geometry, quad
 
 RES = 32
 
 
 def _box(lo, hi) -> np.ndarray:
     """(12, 3, 3) triangles of a closed box, normals outward."""
-    (x0, y0, z0), (x1, y1, z1) = lo, hi
-    X, Y, Z = x1 - x0, y1 - y0, z1 - z0
-    return np.concatenate([
-        quad([x0, y0, z0], [0, Y, 0], [X, 0, 0]), quad([x0, y0, z1], [X, 0, 0], [0, Y, 0]),
-        quad([x0, y0, z0], [X, 0, 0], [0, 0, Z]), quad([x0, y1, z0], [0, 0, Z], [X, 0, 0]),
-        quad([x0, y0, z0], [0, 0, Z], [0, Y, 0]), quad([x1, y0, z0], [0, Y, 0], [0, 0, Z]),
-    ])
+    return np.concatenate(closed_box(lo, hi))
 
 
 def _scene() -> Scene:

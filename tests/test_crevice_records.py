@@ -8,12 +8,13 @@ import pytest
 
 from pdic.bench.path_referee import mean_indirect
 from pdic.core import texels as texel_stage
+from pdic.core.texels import splat
 from pdic.core.crevice_records import local_distance
 from pdic.core.lights import PointLight
 from pdic.core.pipeline import bake
 from pdic.core.rays import RayCaster
 from pdic.core.settings import preset
-from scenes import quad, quad_scene
+from scenes import box_faces, closed_box, quad, quad_scene
 
 GAP = 0.02
 """The plate's back stands this far before the wall, as the cathedral's window tracery does."""
@@ -35,23 +36,12 @@ def test_the_local_distance_under_a_plane_is_five_thirds_of_its_height_at_any_sc
     assert local_distance(_planes(-1.0), p, n)[0] == np.inf
 
 
-def _box(lo, hi) -> list:
-    """The six outward faces of an axis-aligned box, as quads."""
-    (x0, y0, z0), (x1, y1, z1) = lo, hi
-    dx, dy, dz = x1 - x0, y1 - y0, z1 - z0
-    return [quad([x0, y0, z0], [0, dy, 0], [dx, 0, 0]), quad([x0, y0, z1], [dx, 0, 0], [0, dy, 0]),
-            quad([x0, y0, z0], [dx, 0, 0], [0, 0, dz]), quad([x0, y1, z0], [0, 0, dz], [dx, 0, 0]),
-            quad([x0, y0, z0], [0, 0, dz], [0, dy, 0]), quad([x1, y0, z0], [0, dy, 0], [0, 0, dz])]
-
-
 def _plate_before_a_wall():
     """A 2 m room lit by a lamp, and a 40 cm x 1 m plate, 4 cm thick, standing GAP before its back wall: the
     plate's back (facing the wall, 4 x 4 texels) and the wall (8 x 8: 25 cm texels, zones 14 cm) baked."""
     s = 2.0
-    room = [quad([0, 0, 0], [s, 0, 0], [0, s, 0]), quad([0, s, 0], [s, 0, 0], [0, 0, s]),
-            quad([0, 0, s], [0, s, 0], [s, 0, 0]), quad([0, 0, 0], [0, 0, s], [s, 0, 0]),
-            quad([0, 0, 0], [0, s, 0], [0, 0, s]), quad([s, 0, 0], [0, 0, s], [0, s, 0])]
-    plate = _box([0.8, s - GAP - 0.04, 0.5], [1.2, s - GAP, 1.5])
+    room = [face * s for face in box_faces()]  # its back wall (face 1) at y = s
+    plate = closed_box([0.8, s - GAP - 0.04, 0.5], [1.2, s - GAP, 1.5])  # its back (+y) is face 6 + 3
     return quad_scene(room + plate, {"wall": (1, 8), "plate_back": (9, 4)},
                       [PointLight("lamp", np.array([1.0, 0.6, 1.6]), np.full(3, 200.0))])
 
@@ -67,11 +57,8 @@ def plate():
     points, rasters = texel_stage.lift_texels(replace(scene, targets=(scene.targets[target],)), 2)
     E, _ = mean_indirect(scene, RayCaster(scene.geometry.positions), points.p, points.n_shading, 4000,
                          np.random.default_rng(3))
-    size = rasters[0].coverage.size
-    total = np.bincount(points.texel, weights=points.weight, minlength=size)
-    reference = np.stack([np.bincount(points.texel, weights=points.weight * E[:, c], minlength=size) for c in range(3)],
-                         axis=1) / np.maximum(total, 1e-30)[:, None]
-    return on, off, reference.reshape(rasters[0].coverage.shape + (3,))
+    total = splat(np.ones((len(points), 1)), points, rasters[0])
+    return on, off, splat(E, points, rasters[0]) / np.maximum(total, 1e-30)
 
 
 def _error(result, reference) -> tuple[float, float]:
