@@ -239,18 +239,22 @@ def rasterise_targets(run: "_Run") -> list[TargetTexels]:
     def lift(target):
         rasterised.append(target.name)
         points, rasters = texel_stage.lift_texels(replace(scene, targets=(target,)), settings.texel_samples,
-                                                  run.executor.map)
+                                                  run.executor.map, settings.deviations.crease_folding)
         return points, rasters[0]
 
     with stats.stage("rasterise"):
         for target in scene.targets:
-            key = target_key(scene, target, settings.texel_samples)
+            # crease-folding changes the samples, not the texels: it joins the key after the hash, so
+            # the target's random streams (TargetTexels.stream, the hash's first digits) stay its texels'.
+            key = target_key(scene, target, settings.texel_samples) + (
+                "+crease-folding" if settings.deviations.crease_folding else "")
             points, raster = run.store.memoise("raster", key, lambda: lift(target))
             covered = max(int(raster.coverage.sum()), 1)
             texel_size = float(np.sqrt(scene.geometry.areas()[target.triangles].sum() / covered))
             targets.append(TargetTexels(points, raster, key, texel_size))
     stats.set(texel_samples=sum(len(t.points) for t in targets),
-              texels_covered=int(sum(t.raster.coverage.sum() for t in targets)), targets_rasterised=len(rasterised))
+              texels_covered=int(sum(t.raster.coverage.sum() for t in targets)), targets_rasterised=len(rasterised),
+              texel_samples_folded=sum(t.raster.folded for t in targets))
     return targets
 
 

@@ -40,7 +40,7 @@ MIN_OVERLAP = 1e-10
 class TexelSamples:
     """Surface sample points of a light map (struct of arrays, s samples).
 
-    Memory: 8 + 8 + 24 + 4 + 1 = 45 bytes per sample, plus 2 bytes per texel.
+    Memory: 8 + 8 + 24 + 4 + 1 = 45 bytes per sample, plus 6 bytes per texel.
 
     Attributes
     ----------
@@ -52,6 +52,8 @@ class TexelSamples:
     coverage : (height, width) bool, texels with at least one sample.
     centre_inside : (height, width) bool, texels whose centre lies inside a triangle
         (the texels Cycles bakes; compare against Cycles on this mask).
+    centre_triangle : (height, width) int32 the triangle under each texel's centre (the one its
+        bake samples lie on in Cycles), -1 where ``centre_inside`` is False.
     width, height : light-map size in texels.
     """
 
@@ -62,6 +64,7 @@ class TexelSamples:
     conservative: np.ndarray
     coverage: np.ndarray
     centre_inside: np.ndarray
+    centre_triangle: np.ndarray
     width: int
     height: int
 
@@ -70,7 +73,7 @@ class TexelSamples:
         for name in ("triangle", "barycentric", "weight", "conservative"):
             if len(getattr(self, name)) != s:
                 raise ValueError(f"TexelSamples.{name} has {len(getattr(self, name))} rows, texel has {s}")
-        if self.coverage.shape != (self.height, self.width) or self.centre_inside.shape != (self.height, self.width):
+        if any(m.shape != (self.height, self.width) for m in (self.coverage, self.centre_inside, self.centre_triangle)):
             raise ValueError("TexelSamples: coverage masks must be (height, width)")
 
     @property
@@ -128,9 +131,11 @@ def rasterize(uv: np.ndarray, width: int, height: int, samples_per_axis: int = 2
     c_texel, c_tri, c_bary = _clipped_centroids(p_texel, width, height, has_sample, map)
 
     # -- texel centres (Cycles bakes exactly these texels)
-    centre, _, _ = _grid_hits(p_texel, width, height, 1, map)
+    centre, centre_tri, _ = _grid_hits(p_texel, width, height, 1, map)
     centre_inside = np.zeros(width * height, bool)
     centre_inside[centre] = True
+    centre_triangle = np.full(width * height, -1, np.int32)
+    centre_triangle[centre] = centre_tri
 
     texel = np.concatenate([texel, c_texel])
     tri = np.concatenate([tri, c_tri])
@@ -140,8 +145,8 @@ def rasterize(uv: np.ndarray, width: int, height: int, samples_per_axis: int = 2
     texel, tri, bary, conservative = texel[order], tri[order], bary[order], conservative[order]
     counts = np.bincount(texel, minlength=width * height)
     weight = (1.0 / counts[texel]).astype(np.float32)
-    return TexelSamples(texel, tri, bary, weight, conservative,
-                        (counts > 0).reshape(height, width), centre_inside.reshape(height, width), width, height)
+    return TexelSamples(texel, tri, bary, weight, conservative, (counts > 0).reshape(height, width),
+                        centre_inside.reshape(height, width), centre_triangle.reshape(height, width), width, height)
 
 
 # --------------------------------------------------------------------------- batching
@@ -181,7 +186,7 @@ def _batches(lo_x, lo_y, hi_x, hi_y):
             yield it, lo_x[it], y0[g], hi_x[it], y1[g], gw, gh
 
 
-def _barycentric(p, x, y, area2):
+def barycentric_weights(p, x, y, area2):
     """Barycentrics (3, ...) of points (x, y) in triangles p (m, 3, 2) (broadcast over trailing dims)."""
     extra = (slice(None),) + (None,) * (x.ndim - 1)
     x0, y0 = p[:, 0, 0][extra], p[:, 0, 1][extra]
@@ -193,7 +198,7 @@ def _barycentric(p, x, y, area2):
     return 1.0 - b1 - b2, b1, b2
 
 
-def _area2(p):
+def twice_area(p):
     return (p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 1, 1] - p[:, 0, 1]) * (p[:, 2, 0] - p[:, 0, 0])
 
 
@@ -204,7 +209,7 @@ def _grid_raw(p_texel, width, height, n, map=map):
     triangle (k,) int64, barycentric (k, 3) float64, least barycentric (k,))."""
     q = p_texel * n - 0.5  # grid point (sx, sy) sits at q = (sx, sy)
     gw, gh = width * n, height * n
-    area2 = _area2(q)
+    area2 = twice_area(q)
     lo_x = np.maximum(np.ceil(q[:, :, 0].min(1) - 1e-9), 0).astype(np.int64)
     hi_x = np.minimum(np.floor(q[:, :, 0].max(1) + 1e-9), gw - 1).astype(np.int64)
     lo_y = np.maximum(np.ceil(q[:, :, 1].min(1) - 1e-9), 0).astype(np.int64)
@@ -216,7 +221,7 @@ def _grid_raw(p_texel, width, height, n, map=map):
         k = live[item]
         sx = x0[:, None, None] + np.arange(bw)[None, None, :]
         sy = y0[:, None, None] + np.arange(bh)[None, :, None]
-        b0, b1, b2 = _barycentric(q[k], sx.astype(np.float64), sy.astype(np.float64), area2[k])
+        b0, b1, b2 = barycentric_weights(q[k], sx.astype(np.float64), sy.astype(np.float64), area2[k])
         least = np.minimum(np.minimum(b0, b1), b2)
         inside = (least >= -INSIDE_EPS) & (sx <= x1[:, None, None]) & (sy <= y1[:, None, None])
         m, r, c = np.nonzero(inside)
@@ -311,7 +316,7 @@ def _clipped_centroids(p_texel, width, height, has_sample, map=map):
 
     Returns (texel (c,) int64, triangle (c,) int64, barycentric (c, 3) float64).
     """
-    area2 = _area2(p_texel)
+    area2 = twice_area(p_texel)
     lo_x = np.maximum(np.floor(p_texel[:, :, 0].min(1)), 0).astype(np.int64)
     hi_x = np.minimum(np.ceil(p_texel[:, :, 0].max(1)) - 1, width - 1).astype(np.int64)
     lo_y = np.maximum(np.floor(p_texel[:, :, 1].min(1)), 0).astype(np.int64)
@@ -342,7 +347,7 @@ def _clipped_centroids(p_texel, width, height, has_sample, map=map):
     order = np.lexsort((tri, -area, texel))  # largest overlap first, then lowest index
     first = order[np.r_[True, texel[order][1:] != texel[order][:-1]]]
     texel, tri, centroid = texel[first], tri[first], centroid[first]
-    b0, b1, b2 = _barycentric(p_texel[tri], centroid[:, 0], centroid[:, 1], area2[tri])
+    b0, b1, b2 = barycentric_weights(p_texel[tri], centroid[:, 0], centroid[:, 1], area2[tri])
     return texel, tri, _normalise(np.stack([b0, b1, b2], axis=1))
 
 
@@ -430,13 +435,13 @@ def footprint_points(uv: np.ndarray, width: int, height: int, texels: np.ndarray
     slot = np.full(width * height, -1, np.int64)
     slot[texels] = np.arange(len(texels))
     pair_slot, pair_tri = _footprint_pairs(p_texel, width, height, slot)
-    area2 = _area2(p_texel)
+    area2 = twice_area(p_texel)
     found_point, found_tri, found_bary, found_depth = [], [], [], []
     per_batch = max(1, BATCH_ELEMENTS // (m * m))
     for s in range(0, len(pair_slot), per_batch):
         ps, pt = pair_slot[s:s + per_batch], pair_tri[s:s + per_batch]
         q = pts[ps]
-        b0, b1, b2 = _barycentric(p_texel[pt], q[..., 0], q[..., 1], area2[pt])
+        b0, b1, b2 = barycentric_weights(p_texel[pt], q[..., 0], q[..., 1], area2[pt])
         least = np.minimum(np.minimum(b0, b1), b2)
         r, c = np.nonzero(least >= -INSIDE_EPS)
         found_point.append(ps[r] * (m * m) + c)
@@ -458,7 +463,7 @@ def _footprint_pairs(p_texel, width, height, slot):
     hi_x = np.minimum(np.ceil(p_texel[:, :, 0].max(1)) - 1, width - 1).astype(np.int64)
     lo_y = np.maximum(np.floor(p_texel[:, :, 1].min(1)), 0).astype(np.int64)
     hi_y = np.minimum(np.ceil(p_texel[:, :, 1].max(1)) - 1, height - 1).astype(np.int64)
-    live = (hi_x >= lo_x) & (hi_y >= lo_y) & (np.abs(_area2(p_texel)) > MIN_AREA2)
+    live = (hi_x >= lo_x) & (hi_y >= lo_y) & (np.abs(twice_area(p_texel)) > MIN_AREA2)
     # only triangles whose box holds a chosen texel (summed-area table of the chosen texels)
     table = np.zeros((height + 1, width + 1), np.int64)
     table[1:, 1:] = (slot >= 0).reshape(height, width).cumsum(0).cumsum(1)

@@ -99,6 +99,10 @@ class Deviations:
     """Texel samples on a face another face touches face to face (a building's bottom on a ground plane, a
     cabinet's back flush against a one-face wall) get no light, as in Cycles: their rays would start past
     the touching face (core/contact.py). Off: they are lit from beyond it."""
+    crease_folding: bool = True
+    """A texel sample across a crease (a geometric normal turning more than CREASE_FOLD_ANGLE) from the
+    triangle under its texel's centre moves onto that triangle, where Cycles bakes the whole texel
+    (core/crease_folding.py)."""
     crevice_records: bool = True
     """Final: a texel sample whose surroundings stand nearer than a zone (tracery 2 cm before its wall, the
     crease under an overhang, a corner) gathers a record of its own and takes its E_k instead of Equation 3's

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .crease_folding import fold_across_creases
 from .executor import TEXEL_CHUNK, slices
 from .raster import footprint_points, rasterize
 from .scene import Scene
@@ -106,21 +107,26 @@ LIFT_CHUNK = 8 * TEXEL_CHUNK
 
 @dataclass(frozen=True)
 class TargetRaster:
-    """Per-target rasterisation bookkeeping: image size, coverage and Cycles' centre mask."""
+    """Per-target rasterisation bookkeeping: image size, coverage and Cycles' centre mask; ``folded``:
+    samples moved onto their texel's centre triangle (deviation: crease-folding)."""
 
     width: int
     height: int
     coverage: np.ndarray
     centre_inside: np.ndarray
     sample_slice: slice
+    folded: int = 0
 
 
-def lift_texels(scene: Scene, samples_per_axis: int, map=map) -> tuple[TexelPoints, list[TargetRaster]]:
+def lift_texels(scene: Scene, samples_per_axis: int, map=map, crease_folding: bool = False
+                ) -> tuple[TexelPoints, list[TargetRaster]]:
     """Rasterise every target's light-map UVs and place the samples on the surface.
 
     Degenerate (zero-area) triangles are dropped here: they hold no surface to light.
     map : runs batches of triangles and of samples (an executor's ``map`` spreads them over
         threads; the points are the same).
+    crease_folding : samples across a crease from their texel's centre triangle move onto it
+        (deviation: crease-folding, :func:`core.crease_folding.fold_across_creases`).
     """
     geometry = scene.geometry
     face_n = geometry.face_normals()
@@ -130,8 +136,11 @@ def lift_texels(scene: Scene, samples_per_axis: int, map=map) -> tuple[TexelPoin
         keep = areas[target.triangles] > 0
         local = np.flatnonzero(keep)
         samples = rasterize(target.lightmap_uv[local], target.width, target.height, samples_per_axis, map)
-        tri = target.triangles[local[samples.triangle]]
-        b = samples.barycentric  # weights of corners 0, 1, 2
+        tri_local, b, folded = samples.triangle, samples.barycentric, 0  # b: weights of corners 0, 1, 2
+        if crease_folding:
+            tri_local, b, folded = fold_across_creases(samples, target.lightmap_uv[local],
+                                                       face_n[target.triangles[local]])
+        tri = target.triangles[local[tri_local]]
         chunks = slices(len(tri), LIFT_CHUNK) or [slice(0, 0)]
         lifted = list(map(lambda s: _on_surface(geometry, face_n, tri[s], b[s]), chunks))
         p, n_s, n_g = (np.concatenate(column) for column in zip(*lifted)) if len(lifted) > 1 else lifted[0]
@@ -139,7 +148,7 @@ def lift_texels(scene: Scene, samples_per_axis: int, map=map) -> tuple[TexelPoin
         parts.append((p, n_s, n_g, tri, b[:, 1:3].copy(), np.full(count, len(rasters), np.int32),
                       samples.texel, samples.weight))
         rasters.append(TargetRaster(target.width, target.height, samples.coverage, samples.centre_inside,
-                                    slice(start, start + count)))
+                                    slice(start, start + count), folded))
         start += count
     if not parts:
         empty = TexelPoints(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64),
