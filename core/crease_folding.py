@@ -12,14 +12,16 @@ at PDIC's own samples agreed with PDIC.
 A sample on a triangle whose geometric normal turns more than CREASE_FOLD_ANGLE from the centre
 triangle's moves onto the centre triangle, to where Cycles' fold puts it; samples on a coplanar or
 gently curving neighbour stay where they are (there the two conventions light the same surface).
-Texels whose centre lies on no triangle keep their samples: Cycles does not bake them.
+Texels whose centre lies on no triangle keep their samples: Cycles does not bake them. The regular
+samples fold (:func:`core.texels.lift_texels`), and so do the jittered points over a texel's footprint
+that the direct light and texel validity take at edges (:func:`core.texels.footprint_texel_points`).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from .constants import CREASE_FOLD_ANGLE
-from .raster import TexelSamples, barycentric_weights, twice_area
+from .raster import barycentric_weights, twice_area
 
 
 def mirror(x: np.ndarray, limit: np.ndarray | float) -> np.ndarray:
@@ -31,30 +33,30 @@ def mirror(x: np.ndarray, limit: np.ndarray | float) -> np.ndarray:
     return np.where(whole.astype(np.int64) & 1, 1.0 - frac, frac) * limit
 
 
-def fold_across_creases(samples: TexelSamples, uv: np.ndarray, normals: np.ndarray
+def fold_across_creases(texel: np.ndarray, triangle: np.ndarray, bary: np.ndarray, centre_triangle: np.ndarray,
+                        uv: np.ndarray, normals: np.ndarray, width: int, height: int
                         ) -> tuple[np.ndarray, np.ndarray, int]:
-    """(triangle (s,), barycentric (s, 3), samples folded) of ``samples`` with the ones across a crease
-    from their texel's centre triangle folded onto it.
+    """(triangle (s,), barycentric (s, 3), samples folded): the samples with the ones across a crease from
+    their texel's centre triangle folded onto it.
 
-    uv : (t, 3, 2) the rasterised UV triangles (``samples.triangle`` indexes them);
-    normals : (t, 3) their unit geometric normals.
+    texel, triangle, bary : (s,), (s,), (s, 3) the samples' flat texel, triangle (indexing ``uv``) and
+    corner weights; centre_triangle : (width * height,) the triangle under each texel's centre, -1 none;
+    uv : (t, 3, 2) the rasterised UV triangles; normals : (t, 3) their unit geometric normals.
     The fold mirrors the sample's corner weights 0 and 1 into [0, 1] and [0, 1 - w0]: Cycles folds
     Blender's barycentric (u, v), the weights of corners 0 and 1, before turning them into its own.
     """
-    tri, bary = samples.triangle, samples.barycentric
-    centre = samples.centre_triangle.reshape(-1)[samples.texel]
-    on_face = centre >= 0
-    turn = np.einsum("ij,ij->i", normals[tri], normals[np.maximum(centre, 0)])
-    fold = np.flatnonzero(on_face & (centre != tri) & (turn < np.cos(np.radians(CREASE_FOLD_ANGLE))))
+    centre = centre_triangle[texel]
+    turn = np.einsum("ij,ij->i", normals[triangle], normals[np.maximum(centre, 0)])
+    fold = np.flatnonzero((centre >= 0) & (centre != triangle) & (turn < np.cos(np.radians(CREASE_FOLD_ANGLE))))
     if len(fold) == 0:
-        return tri, bary, 0
-    size = [samples.width, samples.height]
-    position = np.einsum("sk,skd->sd", bary[fold], np.asarray(uv, np.float64)[tri[fold]] * size)
-    corners = np.asarray(uv, np.float64)[centre[fold]] * size
+        return triangle, bary, 0
+    uv = np.asarray(uv, np.float64) * [width, height]
+    position = np.einsum("sk,skd->sd", bary[fold], uv[triangle[fold]])
+    corners = uv[centre[fold]]
     w0, w1, _ = barycentric_weights(corners, position[:, 0], position[:, 1], twice_area(corners))
     w0 = mirror(w0, 1.0)
     w1 = mirror(w1, 1.0 - w0)
-    tri, bary = tri.copy(), bary.copy()
-    tri[fold] = centre[fold]
+    triangle, bary = triangle.copy(), bary.copy()
+    triangle[fold] = centre[fold]
     bary[fold] = np.stack([w0, w1, 1.0 - w0 - w1], axis=1)
-    return tri, bary, len(fold)
+    return triangle, bary, len(fold)

@@ -122,7 +122,8 @@ def footprint_direct(scene, caster, target_index: int, points: TexelPoints, rast
     texels = edge_texels(direct, points, raster, texel_size, neighbours=settings.direct_footprint_side > hull + 1e-9)
     m = DIRECT_FOOTPRINT_PER_AXIS
     rng = np.random.default_rng([settings.seed, STREAM_DIRECT_FOOTPRINT, stream])
-    fp = footprint_texel_points(scene, target_index, texels, m, rng, settings.direct_footprint_side)
+    fp = footprint_texel_points(scene, target_index, texels, m, rng, settings.direct_footprint_side,
+                                settings.deviations.crease_folding)
     counters = {"direct_footprint_texels": len(texels), "direct_footprint_points": len(fp),
                 "direct_footprint_shadow_rays": 0}
     if len(fp) == 0:

@@ -138,8 +138,9 @@ def lift_texels(scene: Scene, samples_per_axis: int, map=map, crease_folding: bo
         samples = rasterize(target.lightmap_uv[local], target.width, target.height, samples_per_axis, map)
         tri_local, b, folded = samples.triangle, samples.barycentric, 0  # b: weights of corners 0, 1, 2
         if crease_folding:
-            tri_local, b, folded = fold_across_creases(samples, target.lightmap_uv[local],
-                                                       face_n[target.triangles[local]])
+            tri_local, b, folded = fold_across_creases(samples.texel, tri_local, b, samples.centre_triangle.reshape(-1),
+                                                       target.lightmap_uv[local], face_n[target.triangles[local]],
+                                                       target.width, target.height)
         tri = target.triangles[local[tri_local]]
         chunks = slices(len(tri), LIFT_CHUNK) or [slice(0, 0)]
         lifted = list(map(lambda s: _on_surface(geometry, face_n, tri[s], b[s]), chunks))
@@ -159,7 +160,7 @@ def lift_texels(scene: Scene, samples_per_axis: int, map=map, crease_folding: bo
 
 
 def footprint_texel_points(scene: Scene, target_index: int, texels: np.ndarray, per_axis: int,
-                           rng: np.random.Generator, side: float = 1.0) -> TexelPoints:
+                           rng: np.random.Generator, side: float = 1.0, crease_folding: bool = False) -> TexelPoints:
     """Stratified jittered points over the footprint of some texels of one target, on its surface.
 
     The points of :func:`core.raster.footprint_points` lifted as :func:`lift_texels` lifts the
@@ -173,12 +174,22 @@ def footprint_texel_points(scene: Scene, target_index: int, texels: np.ndarray, 
     per_axis : strata per texel axis (typical 8).
     rng : the jitter's random stream.
     side : footprint width in texels, centred on the texel (:func:`core.raster.footprint_points`).
+    crease_folding : points across a crease from the triangle under their texel's centre fold onto it,
+        as :func:`lift_texels`' samples do (deviation: crease-folding).
     """
     geometry = scene.geometry
     target = scene.targets[target_index]
     local = np.flatnonzero(geometry.areas()[target.triangles] > 0)
-    texel, tri_local, b = footprint_points(target.lightmap_uv[local], target.width, target.height,
-                                           texels, per_axis, rng, side)
+    uv = target.lightmap_uv[local]
+    texel, tri_local, b = footprint_points(uv, target.width, target.height, texels, per_axis, rng, side)
+    if crease_folding and len(texel):
+        # the texels' centres: one point each on a footprint of side 0 (no jitter drawn from ``rng``)
+        at, under, _ = footprint_points(uv, target.width, target.height, texels, 1, np.random.default_rng(0), 0.0)
+        centre = np.full(target.width * target.height, -1, np.int64)
+        centre[at] = under
+        tri_local, b, _ = fold_across_creases(texel, tri_local, b, centre, uv,
+                                              geometry.face_normals()[target.triangles[local]], target.width,
+                                              target.height)
     tri = target.triangles[local[tri_local]]
     p, n_s, n_g = _on_surface(geometry, geometry.face_normals(), tri, b)
     counts = np.bincount(texel, minlength=target.width * target.height)

@@ -263,7 +263,7 @@ def indirect_weights(scene, caster, density, target_index: int, points, inside: 
     straddling = np.flatnonzero((kept > 0) & (kept < total))
     rng = np.random.default_rng([settings.seed, STREAM_VALIDITY_FOOTPRINT, stream])
     fp = footprint_texel_points(scene, target_index, straddling, VALIDITY_FOOTPRINT_PER_AXIS, rng,
-                                settings.direct_footprint_side)
+                                settings.direct_footprint_side, settings.deviations.crease_folding)
     rays = 0
     if len(fp):
         fp_inside, fp_covered, rays = texel_validity(caster, fp, [settings.seed, STREAM_VALIDITY_FOOTPRINT, stream, 1],

@@ -77,6 +77,19 @@ def test_samples_across_the_crease_move_onto_the_centre_triangle_and_stay_on_it(
     assert np.array_equal(plain.p[~column], folded.p[~column])  # texels on one face keep their samples
 
 
+def test_footprint_points_of_a_straddling_texel_fold_as_its_samples_do():
+    """The jittered points the direct light and texel validity take over an edge texel's footprint."""
+    scene = _scene()
+    texels = np.array([3 * RES + 4, 3 * RES + 2])  # row 3: column 4 straddles the crease, column 2 does not
+    plain = texel_stage.footprint_texel_points(scene, 0, texels, 8, np.random.default_rng(1))
+    folded = texel_stage.footprint_texel_points(scene, 0, texels, 8, np.random.default_rng(1), crease_folding=True)
+    bent_normal = scene.geometry.face_normals()[2]
+    straddling = plain.texel == texels[0]
+    assert 0 < np.mean(np.all(np.isclose(plain.n_geometric[straddling], bent_normal), axis=1)) < 1
+    assert np.allclose(folded.n_geometric[folded.texel == texels[0]], bent_normal)
+    assert np.array_equal(plain.p[~straddling], folded.p[folded.texel != texels[0]])
+
+
 def test_a_flat_chart_folds_nothing():
     flat = quad_scene([quad(np.zeros(3), [1, 0, 0], [0, 1, 0])], {"floor": (0, RES)},
                       [PointLight("lamp", LIGHT, np.full(3, POWER))])
