@@ -248,7 +248,8 @@ def rasterise_targets(run: "_Run") -> list[TargetTexels]:
             # the target's random streams (TargetTexels.stream, the hash's first digits) stay its texels'.
             key = target_key(scene, target, settings.texel_samples) + (
                 "+crease-folding" if settings.deviations.crease_folding else "")
-            points, raster = run.store.memoise("raster", key, lambda: lift(target))
+            # stored under the code's hash too (store.key), as every other kind: a raster of older code is never reused
+            points, raster = run.store.memoise("raster", run.store.key("raster", key), lambda: lift(target))
             covered = max(int(raster.coverage.sum()), 1)
             texel_size = float(np.sqrt(scene.geometry.areas()[target.triangles].sum() / covered))
             targets.append(TargetTexels(points, raster, key, texel_size))

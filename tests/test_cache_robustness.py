@@ -104,3 +104,22 @@ def test_unwritable_bake_cache_folder_keeps_values_in_memory_and_warns(tmp_path)
     store.put("photons", store.key("photons", "other"), np.arange(2.0))
     assert np.array_equal(store.get("photons", key), np.arange(5.0))
     assert len(store.warnings) == 1 and "cannot be written" in store.warnings[0]
+
+
+def test_no_bake_cache_entry_of_other_code_is_reused(tmp_path):
+    """Every kind, the texel samples too, is keyed by the core's code: after an update (here: another
+    code hash) a bake recomputes all, and with the same code it reuses all."""
+    from scenes import lamp_box
+
+    from pdic.core.pipeline import bake
+    from pdic.core.settings import preset
+
+    settings = preset("PREVIEW", photons=2000, max_bounces=2, threads=1)
+    bake(lamp_box(8), settings, cache=BakeCache(tmp_path))
+    same = BakeCache(tmp_path, memory=False)
+    bake(lamp_box(8), settings, cache=same)
+    assert same.hits["raster"] > 0 and sum(same.misses.values()) == 0
+    updated = BakeCache(tmp_path, memory=False)
+    updated.code = "another version of core/"
+    bake(lamp_box(8), settings, cache=updated)
+    assert sum(updated.hits.values()) == 0 and updated.misses["raster"] > 0
