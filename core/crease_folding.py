@@ -2,7 +2,7 @@
 
 docs/DEVIATIONS.md, switch ``Deviations.crease_folding``. Cycles bakes a texel on the triangle under
 its centre: the sub-pixel jitter of its bake samples is folded back into that triangle, as a
-mirrored texture repeats (``bake_clamp_mirror_repeat`` in its bake kernel). Where a crease crosses a
+mirrored texture repeats (``bake_clamp_mirror_repeat`` in its bake kernel; :func:`core.raster.fold_into`). Where a crease crosses a
 texel (a column's facets narrower than a texel, a chamfer, a moulding's step) the texel holds the
 light of its centre's face alone. PDIC's regular samples lie on whichever triangle is under them, so
 such a texel averaged two faces: the cathedral's faceted column shafts, lit on one facet and dark on
@@ -21,16 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from .constants import CREASE_FOLD_ANGLE
-from .raster import barycentric_weights, twice_area
-
-
-def mirror(x: np.ndarray, limit: np.ndarray | float) -> np.ndarray:
-    """x folded into [0, limit] as a mirrored texture repeats (Cycles' ``bake_clamp_mirror_repeat``)."""
-    limit = np.maximum(limit, 1e-12)
-    scaled = x / limit
-    whole = np.floor(scaled)
-    frac = scaled - whole
-    return np.where(whole.astype(np.int64) & 1, 1.0 - frac, frac) * limit
+from .raster import fold_into
 
 
 def fold_across_creases(texel: np.ndarray, triangle: np.ndarray, bary: np.ndarray, centre_triangle: np.ndarray,
@@ -42,8 +33,7 @@ def fold_across_creases(texel: np.ndarray, triangle: np.ndarray, bary: np.ndarra
     texel, triangle, bary : (s,), (s,), (s, 3) the samples' flat texel, triangle (indexing ``uv``) and
     corner weights; centre_triangle : (width * height,) the triangle under each texel's centre, -1 none;
     uv : (t, 3, 2) the rasterised UV triangles; normals : (t, 3) their unit geometric normals.
-    The fold mirrors the sample's corner weights 0 and 1 into [0, 1] and [0, 1 - w0]: Cycles folds
-    Blender's barycentric (u, v), the weights of corners 0 and 1, before turning them into its own.
+    The fold is Cycles' (:func:`core.raster.fold_into`).
     """
     centre = centre_triangle[texel]
     turn = np.einsum("ij,ij->i", normals[triangle], normals[np.maximum(centre, 0)])
@@ -52,11 +42,7 @@ def fold_across_creases(texel: np.ndarray, triangle: np.ndarray, bary: np.ndarra
         return triangle, bary, 0
     uv = np.asarray(uv, np.float64) * [width, height]
     position = np.einsum("sk,skd->sd", bary[fold], uv[triangle[fold]])
-    corners = uv[centre[fold]]
-    w0, w1, _ = barycentric_weights(corners, position[:, 0], position[:, 1], twice_area(corners))
-    w0 = mirror(w0, 1.0)
-    w1 = mirror(w1, 1.0 - w0)
     triangle, bary = triangle.copy(), bary.copy()
     triangle[fold] = centre[fold]
-    bary[fold] = np.stack([w0, w1, 1.0 - w0 - w1], axis=1)
+    bary[fold] = fold_into(uv[centre[fold]], position[:, 0], position[:, 1])
     return triangle, bary, len(fold)

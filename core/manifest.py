@@ -56,7 +56,8 @@ Schema (``schema_version`` 1)
     covered texels wholly or partly inside closed geometry, e.g. under a wall or cut by its face;
     with the buried-texels deviation on, docs/DEVIATIONS.md, they hold their whole neighbours' light).
     ``texel_samples_folded`` (int, samples moved across a crease onto their texel's centre triangle,
-    deviation crease-folding).
+    deviation crease-folding), ``texel_samples_past_edges`` (int, sub-samples past a chart's edge
+    folded into their texel's centre triangle, deviation edge-folding).
     Texel validity: ``texel_samples_inside_geometry`` (int, samples given no indirect light),
     of them ``texel_samples_covered`` (int, samples under a sheet nearer than a tenth of a texel,
     or on a face another touches face to face: ``texel_samples_in_contact``, int, deviation

@@ -239,15 +239,17 @@ def rasterise_targets(run: "_Run") -> list[TargetTexels]:
     def lift(target):
         rasterised.append(target.name)
         points, rasters = texel_stage.lift_texels(replace(scene, targets=(target,)), settings.texel_samples,
-                                                  run.executor.map, settings.deviations.crease_folding)
+                                                  run.executor.map, settings.deviations.crease_folding,
+                                                  settings.deviations.edge_folding)
         return points, rasters[0]
 
     with stats.stage("rasterise"):
         for target in scene.targets:
-            # crease-folding changes the samples, not the texels: it joins the key after the hash, so
-            # the target's random streams (TargetTexels.stream, the hash's first digits) stay its texels'.
+            # the foldings change the samples, not the texels: they join the key after the hash, so the
+            # target's random streams (TargetTexels.stream, the hash's first digits) stay its texels'.
             key = target_key(scene, target, settings.texel_samples) + (
-                "+crease-folding" if settings.deviations.crease_folding else "")
+                "+crease-folding" if settings.deviations.crease_folding else "") + (
+                "+edge-folding" if settings.deviations.edge_folding else "")
             # stored under the code's hash too (store.key), as every other kind: a raster of older code is never reused
             points, raster = run.store.memoise("raster", run.store.key("raster", key), lambda: lift(target))
             covered = max(int(raster.coverage.sum()), 1)
@@ -255,7 +257,8 @@ def rasterise_targets(run: "_Run") -> list[TargetTexels]:
             targets.append(TargetTexels(points, raster, key, texel_size))
     stats.set(texel_samples=sum(len(t.points) for t in targets),
               texels_covered=int(sum(t.raster.coverage.sum() for t in targets)), targets_rasterised=len(rasterised),
-              texel_samples_folded=sum(t.raster.folded for t in targets))
+              texel_samples_folded=sum(t.raster.folded for t in targets),
+              texel_samples_past_edges=sum(t.raster.past_edges for t in targets))
     return targets
 
 

@@ -6,6 +6,10 @@ Each texel is shaded from points that lie on the surface. A texel gets:
   regular grid inside the texel, each belonging to the one triangle that
   contains it (on an edge shared by two triangles, or where two charts touch,
   the triangle it is most inside wins; ties go to the lower triangle index);
+* with ``edge_folding`` (deviation: edge-folding), in a texel whose centre lies
+  in a triangle, a sub-sample no triangle holds (past a chart's edge) is
+  **folded into the centre's triangle**, as Cycles' bake folds its jitter
+  (:func:`mirror`);
 * otherwise, if a triangle overlaps the texel but no sub-sample of the texel
   falls inside any triangle (thin slivers, chart borders), **one conservative
   sample** at the centroid of (texel square clipped by the triangle), taken
@@ -55,6 +59,7 @@ class TexelSamples:
     centre_triangle : (height, width) int32 the triangle under each texel's centre (the one its
         bake samples lie on in Cycles), -1 where ``centre_inside`` is False.
     width, height : light-map size in texels.
+    past_edges : sub-samples folded into their texel's centre triangle (deviation: edge-folding).
     """
 
     texel: np.ndarray
@@ -67,6 +72,7 @@ class TexelSamples:
     centre_triangle: np.ndarray
     width: int
     height: int
+    past_edges: int = 0
 
     def __post_init__(self):
         s = len(self.texel)
@@ -87,7 +93,8 @@ class TexelSamples:
 
 
 # --------------------------------------------------------------------------- public
-def rasterize(uv: np.ndarray, width: int, height: int, samples_per_axis: int = 2, map=map) -> TexelSamples:
+def rasterize(uv: np.ndarray, width: int, height: int, samples_per_axis: int = 2, map=map,
+              edge_folding: bool = False) -> TexelSamples:
     """Sample points for every texel that the UV triangles cover.
 
     Parameters
@@ -98,6 +105,8 @@ def rasterize(uv: np.ndarray, width: int, height: int, samples_per_axis: int = 2
     samples_per_axis : sub-samples per texel axis (typical 2: four points per texel).
     map : runs the batches of triangles (an executor's ``map`` spreads them over threads: the
         result is the same, batches are joined in order).
+    edge_folding : a texel whose centre lies in a triangle gets all its sub-samples, those past the
+        chart's edge folded into that triangle (deviation: edge-folding, :func:`_folded_past_edges`).
 
     Returns
     -------
@@ -122,13 +131,6 @@ def rasterize(uv: np.ndarray, width: int, height: int, samples_per_axis: int = 2
 
     # -- sub-samples: n x n grid per texel, one triangle per point
     sample, tri, bary = _grid_hits(p_texel, width, height, n, map)
-    sx, sy = sample % (width * n), sample // (width * n)
-    texel = (sy // n) * width + sx // n
-    has_sample = np.zeros(width * height, bool)
-    has_sample[texel] = True
-
-    # -- conservative samples: overlapped texels without any sub-sample
-    c_texel, c_tri, c_bary = _clipped_centroids(p_texel, width, height, has_sample, map)
 
     # -- texel centres (Cycles bakes exactly these texels)
     centre, centre_tri, _ = _grid_hits(p_texel, width, height, 1, map)
@@ -136,6 +138,19 @@ def rasterize(uv: np.ndarray, width: int, height: int, samples_per_axis: int = 2
     centre_inside[centre] = True
     centre_triangle = np.full(width * height, -1, np.int32)
     centre_triangle[centre] = centre_tri
+
+    past_edges = 0
+    if edge_folding:  # deviation: edge-folding, docs/DEVIATIONS.md
+        f_sample, f_tri, f_bary = _folded_past_edges(p_texel, width, height, n, sample, centre, centre_tri)
+        sample, tri, bary = (np.concatenate(c) for c in ((sample, f_sample), (tri, f_tri), (bary, f_bary)))
+        past_edges = len(f_sample)
+    sx, sy = sample % (width * n), sample // (width * n)
+    texel = (sy // n) * width + sx // n
+    has_sample = np.zeros(width * height, bool)
+    has_sample[texel] = True
+
+    # -- conservative samples: overlapped texels without any sub-sample
+    c_texel, c_tri, c_bary = _clipped_centroids(p_texel, width, height, has_sample, map)
 
     texel = np.concatenate([texel, c_texel])
     tri = np.concatenate([tri, c_tri])
@@ -146,7 +161,49 @@ def rasterize(uv: np.ndarray, width: int, height: int, samples_per_axis: int = 2
     counts = np.bincount(texel, minlength=width * height)
     weight = (1.0 / counts[texel]).astype(np.float32)
     return TexelSamples(texel, tri, bary, weight, conservative, (counts > 0).reshape(height, width),
-                        centre_inside.reshape(height, width), centre_triangle.reshape(height, width), width, height)
+                        centre_inside.reshape(height, width), centre_triangle.reshape(height, width), width, height,
+                        past_edges)
+
+
+def mirror(x: np.ndarray, limit: np.ndarray | float) -> np.ndarray:
+    """x folded into [0, limit] as a mirrored texture repeats (Cycles' ``bake_clamp_mirror_repeat``)."""
+    limit = np.maximum(limit, 1e-12)
+    scaled = x / limit
+    whole = np.floor(scaled)
+    frac = scaled - whole
+    return np.where(whole.astype(np.int64) & 1, 1.0 - frac, frac) * limit
+
+
+def fold_into(corners: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(k, 3) corner weights of points (x, y) (k,) folded into triangles ``corners`` (k, 3, 2) as Cycles'
+    bake folds its jitter: Blender's barycentric (u, v), the weights of corners 0 and 1, mirrored into
+    [0, 1] and then [0, 1 - u], before Cycles turns them into its own."""
+    w0, w1, _ = barycentric_weights(corners, x, y, twice_area(corners))
+    w0 = mirror(w0, 1.0)
+    w1 = mirror(w1, 1.0 - w0)
+    return np.stack([w0, w1, 1.0 - w0 - w1], axis=1)
+
+
+def _folded_past_edges(p_texel, width, height, n, sample, centre, centre_tri):
+    """(sample (f,) int64, triangle (f,), barycentric (f, 3)): the sub-samples of texels ``centre`` (whose
+    centre lies in triangle ``centre_tri``) that no triangle holds (``sample`` lists those one does),
+    folded into the centre's triangle.
+
+    Cycles bakes such a texel from jitter folded back into the centre's triangle wherever it leaves it;
+    without these, a texel at a chart's edge was its inside samples' mean, a quarter or half a texel
+    further from the edge than Cycles' (deviation: edge-folding)."""
+    gw = width * n
+    held = np.zeros(gw * height * n, bool)
+    held[sample] = True
+    j, i = np.divmod(np.arange(n * n), n)
+    cx, cy = centre % width, centre // width
+    grid = ((cy[:, None] * n + j) * gw + cx[:, None] * n + i).ravel()  # (len(centre) * n * n,)
+    missing = np.flatnonzero(~held[grid])
+    owner = missing // (n * n)
+    x = cx[owner] + (i[missing % (n * n)] + 0.5) / n
+    y = cy[owner] + (j[missing % (n * n)] + 0.5) / n
+    tri = centre_tri[owner]
+    return grid[missing], tri, fold_into(p_texel[tri], x, y)
 
 
 # --------------------------------------------------------------------------- batching

@@ -103,6 +103,10 @@ class Deviations:
     """A texel sample across a crease (a geometric normal turning more than CREASE_FOLD_ANGLE) from the
     triangle under its texel's centre moves onto that triangle, where Cycles bakes the whole texel
     (core/crease_folding.py)."""
+    edge_folding: bool = True
+    """In a texel whose centre lies on a triangle, a sub-sample past the chart's edge (on no triangle)
+    folds into that triangle, as Cycles' bake folds its jitter, instead of leaving the texel to its inside
+    samples (core/raster.py:rasterize)."""
     crevice_records: bool = True
     """Final: a texel sample whose surroundings stand nearer than a zone (tracery 2 cm before its wall, the
     crease under an overhang, a corner) gathers a record of its own and takes its E_k instead of Equation 3's

@@ -108,7 +108,8 @@ LIFT_CHUNK = 8 * TEXEL_CHUNK
 @dataclass(frozen=True)
 class TargetRaster:
     """Per-target rasterisation bookkeeping: image size, coverage and Cycles' centre mask; ``folded``:
-    samples moved onto their texel's centre triangle (deviation: crease-folding)."""
+    samples moved onto their texel's centre triangle (deviation: crease-folding); ``past_edges``: samples
+    folded into it from past a chart's edge (deviation: edge-folding)."""
 
     width: int
     height: int
@@ -116,10 +117,11 @@ class TargetRaster:
     centre_inside: np.ndarray
     sample_slice: slice
     folded: int = 0
+    past_edges: int = 0
 
 
-def lift_texels(scene: Scene, samples_per_axis: int, map=map, crease_folding: bool = False
-                ) -> tuple[TexelPoints, list[TargetRaster]]:
+def lift_texels(scene: Scene, samples_per_axis: int, map=map, crease_folding: bool = False,
+                edge_folding: bool = False) -> tuple[TexelPoints, list[TargetRaster]]:
     """Rasterise every target's light-map UVs and place the samples on the surface.
 
     Degenerate (zero-area) triangles are dropped here: they hold no surface to light.
@@ -127,6 +129,8 @@ def lift_texels(scene: Scene, samples_per_axis: int, map=map, crease_folding: bo
         threads; the points are the same).
     crease_folding : samples across a crease from their texel's centre triangle move onto it
         (deviation: crease-folding, :func:`core.crease_folding.fold_across_creases`).
+    edge_folding : sub-samples past a chart's edge fold into their texel's centre triangle
+        (deviation: edge-folding, :func:`core.raster.rasterize`).
     """
     geometry = scene.geometry
     face_n = geometry.face_normals()
@@ -135,7 +139,8 @@ def lift_texels(scene: Scene, samples_per_axis: int, map=map, crease_folding: bo
     for target in scene.targets:
         keep = areas[target.triangles] > 0
         local = np.flatnonzero(keep)
-        samples = rasterize(target.lightmap_uv[local], target.width, target.height, samples_per_axis, map)
+        samples = rasterize(target.lightmap_uv[local], target.width, target.height, samples_per_axis, map,
+                            edge_folding)
         tri_local, b, folded = samples.triangle, samples.barycentric, 0  # b: weights of corners 0, 1, 2
         if crease_folding:
             tri_local, b, folded = fold_across_creases(samples.texel, tri_local, b, samples.centre_triangle.reshape(-1),
@@ -149,7 +154,7 @@ def lift_texels(scene: Scene, samples_per_axis: int, map=map, crease_folding: bo
         parts.append((p, n_s, n_g, tri, b[:, 1:3].copy(), np.full(count, len(rasters), np.int32),
                       samples.texel, samples.weight))
         rasters.append(TargetRaster(target.width, target.height, samples.coverage, samples.centre_inside,
-                                    slice(start, start + count), folded))
+                                    slice(start, start + count), folded, samples.past_edges))
         start += count
     if not parts:
         empty = TexelPoints(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64),
