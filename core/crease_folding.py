@@ -2,9 +2,9 @@
 
 docs/DEVIATIONS.md, switch ``Deviations.crease_folding``. Cycles bakes a texel on the triangle under
 its centre: the sub-pixel jitter of its bake samples is folded back into that triangle, as a
-mirrored texture repeats (``bake_clamp_mirror_repeat`` in its bake kernel; :func:`core.raster.fold_into`). Where a crease crosses a
-texel (a column's facets narrower than a texel, a chamfer, a moulding's step) the texel holds the
-light of its centre's face alone. PDIC's regular samples lie on whichever triangle is under them, so
+mirrored texture repeats (``bake_clamp_mirror_repeat`` in its bake kernel; :func:`core.raster.fold_into`).
+Where a crease crosses a texel (a column's facets narrower than a texel, a chamfer, a moulding's step)
+the texel holds the light of its centre's face alone. PDIC's regular samples lie on whichever triangle is under them, so
 such a texel averaged two faces: the cathedral's faceted column shafts, lit on one facet and dark on
 the next, came out at twice Cycles' light there (0.019 against 0.0097 E/pi) although a path tracer
 at PDIC's own samples agreed with PDIC.

@@ -123,7 +123,7 @@ def footprint_direct(scene, caster, target_index: int, points: TexelPoints, rast
     m = DIRECT_FOOTPRINT_PER_AXIS
     rng = np.random.default_rng([settings.seed, STREAM_DIRECT_FOOTPRINT, stream])
     fp = footprint_texel_points(scene, target_index, texels, m, rng, settings.direct_footprint_side,
-                                settings.deviations.crease_folding)
+                                raster.centre_triangle if settings.deviations.crease_folding else None)
     counters = {"direct_footprint_texels": len(texels), "direct_footprint_points": len(fp),
                 "direct_footprint_shadow_rays": 0}
     if len(fp) == 0:

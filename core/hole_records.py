@@ -31,7 +31,7 @@ from .validity import sample_validity
 def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: GatherSources | None,
                        cache: IrradianceCache, target_index: int, points, texel_size: float, stream: int,
                        params: CacheParameters, settings: BakeSettings, executor: Executor, progress: Progress,
-                       stats, sky: np.ndarray | None = None, contact=None
+                       stats, sky: np.ndarray | None = None, contact=None, centre_triangle: np.ndarray | None = None
                        ) -> tuple[np.ndarray, IrradianceCache, np.ndarray]:
     """Texel validity, then Equation 3 with hole records for one target: (E (n, 3), its hole records,
     the samples' shares of their texels' indirect light (n,), :func:`core.validity.indirect_weights`).
@@ -42,12 +42,14 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
     sky : the world's radiance (3,) when the records gather it (deviation: sky-gathering,
         :mod:`core.sky_gathering`): E is then (n, 6), the records' sky in channels 3-5; or None.
     contact : :class:`core.contact.ContactFaces` for texel validity (deviation: contact-faces), or None.
+    centre_triangle : the target's :attr:`core.texels.TargetRaster.centre_triangle` for texel validity, or None.
     """
     if density is None or len(points) == 0:  # no records: the sky stays the texels' own (3 channels)
         return np.zeros((len(points), 3)), IrradianceCache(), points.weight.astype(np.float64)
     E = np.zeros((len(points), 3 if sky is None else 6))
     inside, weights = sample_validity(scene, caster, density, target_index, points, texel_size, stream, params.R_min,
-                                      settings, executor, progress, stats, contact=contact)
+                                      settings, executor, progress, stats, contact=contact,
+                                      centre_triangle=centre_triangle)
     valid = np.flatnonzero(~inside)
     with stats.stage("interpolate"):
         crevice, rays = np.zeros(0, np.int64), 0

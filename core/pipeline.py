@@ -343,7 +343,8 @@ def validity_without_indirect(run: "_Run", targets: list[TargetTexels]) -> None:
     def weights(index: int, t: TargetTexels):
         voted = _voted(t.E_direct, t.points.texel, t.raster.width, t.raster.height, settings.padding + 2)
         return sample_validity(run.scene, run.caster(), None, index, t.points, t.texel_size, t.stream, 0.0,
-                               settings, run.executor, run.progress, run.stats, voted, run.contact())[1]
+                               settings, run.executor, run.progress, run.stats, voted, run.contact(),
+                               t.raster.centre_triangle)[1]
 
     for index, t in enumerate(targets):
         key = store.key("indirect", "validity without indirect light", _direct_key(run, t), deviations,
@@ -404,7 +405,7 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
         shaded.append(t)
         return indirect_at_texels(run.scene, run.caster(), density, sources, cache, index, t.points, t.texel_size,
                                   t.stream, params, settings, run.executor, run.progress, run.stats, run.sky,
-                                  run.contact())
+                                  run.contact(), t.raster.centre_triangle)
 
     shaded: list = []
     for index, t in enumerate(targets):  # rasterise_targets' list: scene.targets' order

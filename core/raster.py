@@ -9,7 +9,7 @@ Each texel is shaded from points that lie on the surface. A texel gets:
 * with ``edge_folding`` (deviation: edge-folding), in a texel whose centre lies
   in a triangle, a sub-sample no triangle holds (past a chart's edge) is
   **folded into the centre's triangle**, as Cycles' bake folds its jitter
-  (:func:`mirror`);
+  (:func:`fold_into`);
 * otherwise, if a triangle overlaps the texel but no sub-sample of the texel
   falls inside any triangle (thin slivers, chart borders), **one conservative
   sample** at the centroid of (texel square clipped by the triangle), taken

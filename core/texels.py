@@ -107,15 +107,18 @@ LIFT_CHUNK = 8 * TEXEL_CHUNK
 
 @dataclass(frozen=True)
 class TargetRaster:
-    """Per-target rasterisation bookkeeping: image size, coverage and Cycles' centre mask; ``folded``:
-    samples moved onto their texel's centre triangle (deviation: crease-folding); ``past_edges``: samples
-    folded into it from past a chart's edge (deviation: edge-folding)."""
+    """Per-target rasterisation bookkeeping: image size, coverage and Cycles' centre mask;
+    ``centre_triangle``: (width * height,) the triangle under each texel's centre, -1 none (indexing the
+    target's triangles of nonzero area, as :func:`footprint_texel_points` does); ``folded``: samples moved
+    onto it (deviation: crease-folding); ``past_edges``: samples folded into it from past a chart's edge
+    (deviation: edge-folding)."""
 
     width: int
     height: int
     coverage: np.ndarray
     centre_inside: np.ndarray
     sample_slice: slice
+    centre_triangle: np.ndarray
     folded: int = 0
     past_edges: int = 0
 
@@ -141,11 +144,11 @@ def lift_texels(scene: Scene, samples_per_axis: int, map=map, crease_folding: bo
         local = np.flatnonzero(keep)
         samples = rasterize(target.lightmap_uv[local], target.width, target.height, samples_per_axis, map,
                             edge_folding)
+        centre = samples.centre_triangle.reshape(-1)
         tri_local, b, folded = samples.triangle, samples.barycentric, 0  # b: weights of corners 0, 1, 2
         if crease_folding:
-            tri_local, b, folded = fold_across_creases(samples.texel, tri_local, b, samples.centre_triangle.reshape(-1),
-                                                       target.lightmap_uv[local], face_n[target.triangles[local]],
-                                                       target.width, target.height)
+            tri_local, b, folded = fold_across_creases(samples.texel, tri_local, b, centre, target.lightmap_uv[local],
+                                                       face_n[target.triangles[local]], target.width, target.height)
         tri = target.triangles[local[tri_local]]
         chunks = slices(len(tri), LIFT_CHUNK) or [slice(0, 0)]
         lifted = list(map(lambda s: _on_surface(geometry, face_n, tri[s], b[s]), chunks))
@@ -154,7 +157,7 @@ def lift_texels(scene: Scene, samples_per_axis: int, map=map, crease_folding: bo
         parts.append((p, n_s, n_g, tri, b[:, 1:3].copy(), np.full(count, len(rasters), np.int32),
                       samples.texel, samples.weight))
         rasters.append(TargetRaster(target.width, target.height, samples.coverage, samples.centre_inside,
-                                    slice(start, start + count), folded, samples.past_edges))
+                                    slice(start, start + count), centre, folded, samples.past_edges))
         start += count
     if not parts:
         empty = TexelPoints(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64),
@@ -165,7 +168,8 @@ def lift_texels(scene: Scene, samples_per_axis: int, map=map, crease_folding: bo
 
 
 def footprint_texel_points(scene: Scene, target_index: int, texels: np.ndarray, per_axis: int,
-                           rng: np.random.Generator, side: float = 1.0, crease_folding: bool = False) -> TexelPoints:
+                           rng: np.random.Generator, side: float = 1.0, centre_triangle: np.ndarray | None = None
+                           ) -> TexelPoints:
     """Stratified jittered points over the footprint of some texels of one target, on its surface.
 
     The points of :func:`core.raster.footprint_points` lifted as :func:`lift_texels` lifts the
@@ -179,20 +183,17 @@ def footprint_texel_points(scene: Scene, target_index: int, texels: np.ndarray, 
     per_axis : strata per texel axis (typical 8).
     rng : the jitter's random stream.
     side : footprint width in texels, centred on the texel (:func:`core.raster.footprint_points`).
-    crease_folding : points across a crease from the triangle under their texel's centre fold onto it,
-        as :func:`lift_texels`' samples do (deviation: crease-folding).
+    centre_triangle : the target's :attr:`TargetRaster.centre_triangle`, or None: given, points across a
+        crease from the triangle under their texel's centre fold onto it, as :func:`lift_texels`' samples
+        do (deviation: crease-folding).
     """
     geometry = scene.geometry
     target = scene.targets[target_index]
     local = np.flatnonzero(geometry.areas()[target.triangles] > 0)
     uv = target.lightmap_uv[local]
     texel, tri_local, b = footprint_points(uv, target.width, target.height, texels, per_axis, rng, side)
-    if crease_folding and len(texel):
-        # the texels' centres: one point each on a footprint of side 0 (no jitter drawn from ``rng``)
-        at, under, _ = footprint_points(uv, target.width, target.height, texels, 1, np.random.default_rng(0), 0.0)
-        centre = np.full(target.width * target.height, -1, np.int64)
-        centre[at] = under
-        tri_local, b, _ = fold_across_creases(texel, tri_local, b, centre, uv,
+    if centre_triangle is not None and len(texel):
+        tri_local, b, _ = fold_across_creases(texel, tri_local, b, centre_triangle, uv,
                                               geometry.face_normals()[target.triangles[local]], target.width,
                                               target.height)
     tri = target.triangles[local[tri_local]]

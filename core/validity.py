@@ -140,7 +140,7 @@ def texel_validity(caster: RayCaster, points, seed: list, executor, progress, co
 
 def sample_validity(scene, caster: RayCaster, density, target_index: int, points, texel_size: float, stream: int,
                     R_min: float, settings, executor, progress, stats, voted: np.ndarray | None = None,
-                    contact=None) -> tuple[np.ndarray, np.ndarray]:
+                    contact=None, centre_triangle: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """One target's texel validity: (inside (n,) bool, each sample's share of its texel's light (n,),
     :func:`indirect_weights`), its counters added to ``stats`` (stage ``validity``).
 
@@ -148,7 +148,8 @@ def sample_validity(scene, caster: RayCaster, density, target_index: int, points
     density None (no photons) leaves the evidence out. voted : (n,) bool the samples to vote on (the
     rest count as outside: a bake without indirect light), or None for all. contact : the scene's
     :class:`core.contact.ContactFaces` (deviation: contact-faces): samples on a face another touches
-    face to face are covered; or None.
+    face to face are covered; or None. centre_triangle : the target's
+    :attr:`core.texels.TargetRaster.centre_triangle` (:func:`indirect_weights`), or None.
     """
     progress.begin("Texel validity")
     inside, covered, rays = np.zeros(len(points), bool), np.zeros(len(points), bool), 0
@@ -166,7 +167,8 @@ def sample_validity(scene, caster: RayCaster, density, target_index: int, points
         covered |= touching
         inside, overruled = verdict(inside, covered, caster, density, points.p, points.n_geometric, R_min, settings)
         weights, footprint_rays = indirect_weights(scene, caster, density, target_index, points, inside, settings,
-                                                   R_min, stream, cover, executor, progress, contact)
+                                                   R_min, stream, cover, executor, progress, contact,
+                                                   centre_triangle)
     stats.add(texel_samples_inside_geometry=int(inside.sum()), validity_rays=rays + footprint_rays,
               texel_samples_photon_evidence=overruled, texel_samples_covered=int(covered.sum()),
               texel_samples_in_contact=int(touching.sum()))
@@ -238,8 +240,8 @@ def reached_by_photons(caster: RayCaster, density, p: np.ndarray, n: np.ndarray,
 
 
 def indirect_weights(scene, caster, density, target_index: int, points, inside: np.ndarray, settings, R_min: float,
-                     stream: int, cover: float = 0.0, executor=None, progress=None, contact=None
-                     ) -> tuple[np.ndarray, int]:
+                     stream: int, cover: float = 0.0, executor=None, progress=None, contact=None,
+                     centre_triangle: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """Each texel sample's share of its texel's indirect light, (n,) float64, and the rays cast.
 
     Samples inside geometry get none. A texel whose samples straddle a solid's boundary (a floor
@@ -251,7 +253,9 @@ def indirect_weights(scene, caster, density, target_index: int, points, inside: 
     footprint Cycles integrates (``settings.direct_footprint_side``), as the samples are
     (:func:`texel_validity`, chunked over ``executor``, one thread if None); ``cover``: as
     :func:`inside_geometry`'s, points that near under a surface count as inside; ``contact``: as
-    :func:`sample_validity`'s, points on a touching face count as inside.
+    :func:`sample_validity`'s, points on a touching face count as inside; ``centre_triangle``: the target's
+    :attr:`core.texels.TargetRaster.centre_triangle`, which the jittered points across a crease fold onto
+    (deviation: crease-folding), or None.
     """
     w = points.weight.astype(np.float64)
     if not inside.any():
@@ -263,7 +267,8 @@ def indirect_weights(scene, caster, density, target_index: int, points, inside: 
     straddling = np.flatnonzero((kept > 0) & (kept < total))
     rng = np.random.default_rng([settings.seed, STREAM_VALIDITY_FOOTPRINT, stream])
     fp = footprint_texel_points(scene, target_index, straddling, VALIDITY_FOOTPRINT_PER_AXIS, rng,
-                                settings.direct_footprint_side, settings.deviations.crease_folding)
+                                settings.direct_footprint_side,
+                                centre_triangle if settings.deviations.crease_folding else None)
     rays = 0
     if len(fp):
         fp_inside, fp_covered, rays = texel_validity(caster, fp, [settings.seed, STREAM_VALIDITY_FOOTPRINT, stream, 1],

@@ -84,7 +84,9 @@ def test_footprint_points_of_a_straddling_texel_fold_as_its_samples_do():
     scene = _scene()
     texels = np.array([3 * RES + 4, 3 * RES + 2])  # row 3: column 4 straddles the crease, column 2 does not
     plain = texel_stage.footprint_texel_points(scene, 0, texels, 8, np.random.default_rng(1))
-    folded = texel_stage.footprint_texel_points(scene, 0, texels, 8, np.random.default_rng(1), crease_folding=True)
+    _, rasters = texel_stage.lift_texels(scene, 2)
+    folded = texel_stage.footprint_texel_points(scene, 0, texels, 8, np.random.default_rng(1),
+                                                centre_triangle=rasters[0].centre_triangle)
     bent_normal = scene.geometry.face_normals()[2]
     straddling = plain.texel == texels[0]
     assert 0 < np.mean(np.all(np.isclose(plain.n_geometric[straddling], bent_normal), axis=1)) < 1

@@ -50,7 +50,8 @@ def _shares(wall_x: float) -> np.ndarray:
     points, rasters = texel_stage.lift_texels(scene, settings.texel_samples)
     caster = RayCaster(scene.geometry.positions, scene.extent, Executor(1), scene.geometry.transmission)
     inside, _, _ = texel_validity(caster, points, [0, 1], Executor(1), Progress())
-    weights, rays = indirect_weights(scene, caster, None, 0, points, inside, settings, 0.25, 7)
+    weights, rays = indirect_weights(scene, caster, None, 0, points, inside, settings, 0.25, 7,
+                                     centre_triangle=rasters[0].centre_triangle)
     assert rays > 0
     share = np.bincount(points.texel, weights=weights, minlength=RES * RES).reshape(RES, RES)
     return share[RES // 2]
