@@ -12,7 +12,8 @@ and 2: their mean is the reference and their difference its noise, which is subt
 baked.
 
 Prints the noise-corrected relative RMSE per texel and on 8x8 blocks, the same over interior
-texels (bench/run.py ``interior_texels``), the mean ratio, and the share of 8x8 blocks off by
+texels (bench/run.py ``interior_texels``) and over comparable ones (``comparable_texels``: no other
+face within two ray offsets of a sample), the mean ratio, and the share of 8x8 blocks off by
 more than 20 % (blocks whose reference mean is above 5 % of the map's, so the noise of two
 1,024-spp bakes cannot decide it) with the worst of them and the parts of the cathedral they
 lie on. Writes the maps to ``--out``.
@@ -39,7 +40,7 @@ import bpy  # noqa: E402
 import cycles_reference as cr  # noqa: E402
 from bench.cathedral_direct import part, prepare, texel_geometry  # noqa: E402
 from bench.competitors import BLOCK, block_means, errors  # noqa: E402
-from bench.run import interior_texels  # noqa: E402
+from bench.run import texel_masks  # noqa: E402
 from test_cathedral_direct_vs_cycles import ALBEDO  # noqa: E402
 from pdic.pdic_addon import job as job_module  # noqa: E402
 from pdic.pdic_addon import writeback  # noqa: E402
@@ -112,9 +113,9 @@ def main(argv=None):
             coverage = ref.coverage[ob.name]
         np.savez_compressed(cached, C1=pair[0], C2=pair[1], coverage=coverage, seconds=seconds)
     baked = coverage & result.centre_inside[ob.name]
-    interior = interior_texels(job.extraction.scene)[ob.name]
+    interior, comparable = texel_masks(job.extraction.scene)[ob.name]
     np.savez_compressed(folder / f"d{args.detail}_{W}.npz", P=P, C1=pair[0], C2=pair[1], baked=baked,
-                        interior=interior)
+                        interior=interior, comparable=comparable)
     err = errors(P, tuple(pair), baked, interior)
     ntri = sum(len(p.vertices) - 2 for p in ob.data.polygons)
     print(f"detail {args.detail}: {ntri:,} triangles, map {W}x{H}, {int(baked.sum()):,} texels compared "
@@ -125,19 +126,13 @@ def main(argv=None):
     print(f"indirect, noise-corrected: per texel {err['texel']:.2%}, 8x8 blocks {err['block']:.2%}; interior "
           f"{err['texel_interior']:.2%} / {err['block_interior']:.2%}; mean / reference {err['mean_ratio']:.4f}")
 
+    fair = errors(P, tuple(pair), baked & comparable)
+    print(f"comparable texels ({int((baked & comparable).sum()):,}: no other face within two ray offsets of a "
+          f"sample, bench/run.py comparable_texels): per texel {fair['texel']:.2%}, 8x8 blocks {fair['block']:.2%}")
+
     reference = 0.5 * (pair[0] + pair[1])
-    (pb, blocks), (cb, _) = block_means(P, baked), block_means(reference, baked)
-    lp, lc = pb.mean(axis=2), cb.mean(axis=2)
-    judged = blocks & (lc > LIT * lc[blocks].mean())
-    rel = np.where(judged, np.abs(lp - lc) / np.maximum(lc, 1e-30), 0.0)
-    off = judged & (rel > OFF)
-    print(f"8x8 blocks judged {int(judged.sum()):,} of {int(blocks.sum()):,}; off by > {OFF:.0%}: {int(off.sum())} "
-          f"({off.sum() / max(judged.sum(), 1):.2%}); worst {rel.max():.1%}")
-    count = baked.reshape(H // BLOCK, BLOCK, W // BLOCK, BLOCK).sum(axis=(1, 3))
-    full = judged & (count >= BLOCK * BLOCK // 2)
-    print(f"  of the {int(full.sum()):,} judged blocks with >= {BLOCK * BLOCK // 2} texels {int((off & full).sum())} "
-          f"are off; of the {int((judged & (count == BLOCK * BLOCK)).sum()):,} full ones "
-          f"{int((off & (count == BLOCK * BLOCK)).sum())}")
+    rel, lp, lc, count = blocks_off(P, reference, baked, "")
+    blocks_off(P, reference, baked & comparable, "comparable texels: ")
     order = np.argsort(rel, axis=None)[::-1][:args.worst]
     for y, x in zip(*np.unravel_index(order, rel.shape)):
         # The parts of the block's own texels: a chart fragment's block centre is often on no triangle.
@@ -147,6 +142,25 @@ def main(argv=None):
         where = ", ".join(f"{name} {k}" for name, k in parts.most_common(2)) or "no texel on a triangle"
         print(f"  block ({y}, {x}), {int(count[y, x])} texels: PDIC {lp[y, x]:.4g}, Cycles {lc[y, x]:.4g} "
               f"({lp[y, x] / lc[y, x] - 1:+.1%}); {where}")
+
+
+def blocks_off(P: np.ndarray, reference: np.ndarray, mask: np.ndarray, label: str):
+    """Print how many judged 8x8 blocks of ``mask``'s texels are off by more than OFF; return (each block's
+    relative difference (0 where not judged), PDIC's and the reference's block luminance, texels per block)."""
+    H, W = mask.shape
+    (pb, blocks), (cb, _) = block_means(P, mask), block_means(reference, mask)
+    lp, lc = pb.mean(axis=2), cb.mean(axis=2)
+    judged = blocks & (lc > LIT * lc[blocks].mean())
+    rel = np.where(judged, np.abs(lp - lc) / np.maximum(lc, 1e-30), 0.0)
+    off = judged & (rel > OFF)
+    print(f"{label}8x8 blocks judged {int(judged.sum()):,} of {int(blocks.sum()):,}; off by > {OFF:.0%}: "
+          f"{int(off.sum())} ({off.sum() / max(judged.sum(), 1):.2%}); worst {rel.max():.1%}")
+    count = mask.reshape(H // BLOCK, BLOCK, W // BLOCK, BLOCK).sum(axis=(1, 3))
+    full = judged & (count >= BLOCK * BLOCK // 2)
+    print(f"  of the {int(full.sum()):,} judged blocks with >= {BLOCK * BLOCK // 2} texels {int((off & full).sum())} "
+          f"are off; of the {int((judged & (count == BLOCK * BLOCK)).sum()):,} full ones "
+          f"{int((off & (count == BLOCK * BLOCK)).sum())}")
+    return rel, lp, lc, count
 
 
 if __name__ == "__main__":

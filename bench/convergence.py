@@ -7,8 +7,9 @@
 Needs bench/converged_references.py's output (references in bench/references/, the one-object
 core scenes in bench/results/converged/). Per bake: bias = sum PDIC / sum reference - 1 over the
 texels both cover, the noise-corrected relative RMS error (bench/run.py), the same error over
-*interior* texels only (``bench.run.interior_texels``), photons stored and the bake's CPU seconds
-(``threads=1``). ``--figure5`` runs bench/run.py's [Chr99]-vs-Preview
+*comparable* texels (``bench.run.comparable_texels``: on no face duplicated in place, which Cycles
+bakes black; chart edges in) and over *interior* texels only (``bench.run.interior_texels``), photons
+stored and the bake's CPU seconds (``threads=1``). ``--figure5`` runs bench/run.py's [Chr99]-vs-Preview
 comparison against the same references instead.
 """
 from __future__ import annotations
@@ -63,21 +64,24 @@ def bias(images: dict, covered: dict, pair) -> float:
     return test / max(ref, 1e-30) - 1.0
 
 
-def measure(name: str, scene, pair, quality: str, overrides: dict, switches: str = "", interior=None,
+def measure(name: str, scene, pair, quality: str, overrides: dict, switches: str = "", masks=None,
             seeds=(0,)) -> dict:
-    """One row per setting: errors of the first seed's bake; with two seeds also PDIC's own noise."""
+    """One row per setting: errors of the first seed's bake; with two seeds also PDIC's own noise.
+    masks : :func:`bench.run.texel_masks` of the scene (computed if None)."""
     settings = bench_run.with_deviations(preset(quality, threads=1, **overrides), switches)
-    interior = interior if interior is not None else bench_run.interior_texels(scene, settings.texel_samples)
+    masks = masks if masks is not None else bench_run.texel_masks(scene, settings.texel_samples)
     bakes = []
     for seed in seeds:
         t = time.process_time()
         bakes.append((bake(scene, replace(settings, seed=seed)), time.process_time() - t))
     result, cpu = bakes[0]
     c, s = result.stats["counters"], result.stats["seconds"]
-    inside = {n: cov & interior[n] for n, cov in result.centre_inside.items()}
+    inside = {n: cov & masks[n][0] for n, cov in result.centre_inside.items()}
+    comparable = {n: cov & masks[n][1] for n, cov in result.centre_inside.items()}
     row = dict(scene=name, quality=quality, **overrides, deviations=switches, cpu_s=cpu,
                bias=bias(result.indirect, result.centre_inside, pair), bias_interior=bias(result.indirect, inside, pair),
                error=bench_run.noise_corrected_error(result.indirect, result.centre_inside, pair),
+               error_comparable=bench_run.noise_corrected_error(result.indirect, comparable, pair),
                error_interior=bench_run.noise_corrected_error(result.indirect, inside, pair),
                photons_stored=c.get("photons_stored"), photon_bytes=c.get("photon_bytes"),
                photons_before_control=c.get("photons_before_control"), records=c.get("records"),
@@ -134,11 +138,11 @@ def main(argv=None):
             out = bench_run.figure5(name, scene, photons, int(args.bounces.split(",")[-1]), {}, None, pair)
             out.pop("_images", None)
             continue
-        interior = bench_run.interior_texels(scene, preset(args.quality).texel_samples)
+        masks = bench_run.texel_masks(scene, preset(args.quality).texel_samples)
         for bounces in (int(b) for b in args.bounces.split(",")):
             for n in (int(v) for v in args.density_control.split(",")):
                 measure(name, scene, pair, args.quality,
-                        dict(max_bounces=bounces, density_control=n, photons=photons), args.deviations, interior,
+                        dict(max_bounces=bounces, density_control=n, photons=photons), args.deviations, masks,
                         [int(v) for v in args.seeds.split(",")])
 
 

@@ -225,21 +225,46 @@ def interior_texels(scene, texel_samples: int = 2) -> dict:
     bench/path_referee.py, which traces paths from PDIC's samples, sided with PDIC (bench/README.md).
     Texels with a sample on a face another triangle duplicates in place (same plane, same facing)
     bake black in Cycles (bench/coincident.py)."""
+    return {name: masks[0] for name, masks in texel_masks(scene, texel_samples).items()}
+
+
+def comparable_texels(scene, texel_samples: int = 2) -> dict:
+    """Target name -> (H, W) bool: texels none of whose samples another triangle passes through
+    (within two ray offsets, facing either way; bench/coincident.py): every texel a Cycles bake is a
+    reference for, chart edges included.
+
+    Cycles' bake rays leave the surface with no offset and skip only their own triangle, PDIC's leave
+    ``RayCaster.epsilon`` above it: where another face lies closer than that, the two bakers see
+    different geometry. On Sponza held such texels bake black in Cycles where the path referee and
+    PDIC find them lit (a face duplicated in place, a zero-thickness wall), or sit in a seam
+    millimetres wide where the irradiance changes fourfold within one (bench/coincident.py)."""
+    return {name: masks[1] for name, masks in texel_masks(scene, texel_samples).items()}
+
+
+def texel_masks(scene, texel_samples: int = 2) -> dict:
+    """Target name -> ((H, W) interior texels, (H, W) comparable texels): :func:`interior_texels`,
+    :func:`comparable_texels`, from one lifting of the samples."""
     from pdic.bench.coincident import coincident_samples
 
     out = {}
+    positions = scene.geometry.positions
     for target in scene.targets:
         points, rasters = texel_stage.lift_texels(replace(scene, targets=(target,)), texel_samples)
         H, W = rasters[0].coverage.shape
+
+        def texels_with(samples):
+            return np.bincount(points.texel[samples], minlength=H * W).reshape(H, W) > 0
+
         count = np.bincount(points.texel, minlength=H * W).reshape(H, W)
-        full = count == texel_samples ** 2
-        on_coincident = coincident_samples(scene.geometry.positions, points.p, points.n_geometric, points.triangle)
-        full &= np.bincount(points.texel[on_coincident], minlength=H * W).reshape(H, W) == 0
+        full = (count == texel_samples ** 2) & ~texels_with(
+            coincident_samples(positions, points.p, points.n_geometric, points.triangle))
+        comparable = ~texels_with(coincident_samples(positions, points.p, points.n_geometric, points.triangle,
+                                                     either_facing=True))
         covered = np.pad(count > 0, 1)
         for dy in (-1, 0, 1):
             for dx in (-1, 0, 1):
                 full &= covered[1 + dy:1 + dy + H, 1 + dx:1 + dx + W]
-        out[target.name] = full
+        out[target.name] = (full, comparable)
     return out
 
 

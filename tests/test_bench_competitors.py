@@ -129,3 +129,23 @@ def test_interior_texels_leave_out_texels_on_a_face_duplicated_in_place():
             assert not inner[:, :8].any() and inner.sum() == 14 * 7
         else:
             assert inner.sum() == 14 * 14
+
+
+def test_comparable_texels_leave_out_texels_with_another_face_in_place_facing_either_way():
+    """Comparable texels keep the chart's border ring but leave out texels another face passes through
+    within two ray offsets, facing the same way or the other (a zero-thickness wall: Cycles' rays, which
+    leave with no offset, stop on it); a face 5 cm above is a real occluder and stays."""
+    from pdic.bench.run import comparable_texels
+    from scenes import quad, quad_scene
+
+    plane = quad([0, 0, 0], [1, 0, 0], [0, 1, 0])
+    for copy, taken in ((quad([0, 0, 0], [0.5, 0, 0], [0, 1, 0]), True),  # same facing, in place
+                        (quad([0, 0, 0], [0, 1, 0], [0.5, 0, 0]), True),  # facing the other way
+                        (quad([0, 0, 0.05], [0.5, 0, 0], [0, 1, 0]), False)):
+        fair = comparable_texels(quad_scene([plane], {"plane": (0, 16)}, (), extra=copy))["plane"]
+        assert fair.shape == (16, 16)
+        assert fair[:, 9:].all()  # the right half, clear of the copy, border ring included
+        if taken:
+            assert not fair[:, :8].any()
+        else:
+            assert fair.all()
