@@ -111,13 +111,13 @@ def join(objects: list) -> list:
     return [o for o in bpy.context.scene.objects if o.type == "MESH"]
 
 
-def one_object(name: str, spp: int, density: float, scenes_only: bool = False) -> None:
+def one_object(name: str, spp: int, density: float, scenes_only: bool = False, tag: str = "") -> None:
     objects = bench_scenes.load_sponza() if name.startswith("sponza") else bench_scenes.load_occluded()
     objects = join(objects)
     settings = preset("FINAL", texel_density=density, min_resolution=32)
     _, scene = bench_scenes.prepare(objects, settings, SCENES / "cache" / name, area_sized=not name.endswith("_held"))
     SCENES.mkdir(parents=True, exist_ok=True)
-    (SCENES / f"{name}.pkl").write_bytes(pickle.dumps(scene))
+    (SCENES / f"{name}{tag}.pkl").write_bytes(pickle.dumps(scene))
     from pdic.pdic_addon.uvmaps import LIGHTMAP_UV
 
     sizes = {t.name: (t.width, t.height) for t in scene.targets}
@@ -125,12 +125,15 @@ def one_object(name: str, spp: int, density: float, scenes_only: bool = False) -
     if scenes_only:
         return
     pair, seconds = seed_pair(objects, LIGHTMAP_UV, sizes, spp)
-    save_pair(REFERENCES / f"{name}_one_d{density:g}_{spp}x2_{BOUNCES}_INDIRECT.npz", pair, seconds, averaged=False)
+    save_pair(REFERENCES / f"{name}_one_d{density:g}_{spp}x2_{BOUNCES}{tag}_INDIRECT.npz", pair, seconds,
+              averaged=False)
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--only", default="cornell,sponza,occluded")
+    ap.add_argument("--tag", default="", help="appended to the one-object references' and scenes' file names "
+                    "(e.g. _b52 for bakes by another Blender; bench/convergence.py --tag reads them)")
     ap.add_argument("--scenes-only", action="store_true",
                     help="write only the one-object core scenes (the committed references' UVs), no Cycles bake")
     args = ap.parse_args(argv)
@@ -141,7 +144,7 @@ def main(argv=None):
             if not args.scenes_only:
                 cornell(plan["spp"])
         else:
-            one_object(name, plan["spp"], plan["density"], args.scenes_only)
+            one_object(name, plan["spp"], plan["density"], args.scenes_only, args.tag)
 
 
 if __name__ == "__main__":

@@ -42,16 +42,18 @@ FILES = {"cornell": "cornell_point_64_2048_64_INDIRECT.npz", "occluded": "occlud
 sized from the surface area (bench/converged_references.py)."""
 
 
-def load(name: str):
-    """(core scene, reference pair as two dicts of images/coverage, the reference's noise)."""
-    data = np.load(REFERENCES / FILES[name])
+def load(name: str, tag: str = ""):
+    """(core scene, reference pair as two dicts of images/coverage, the reference's noise).
+    tag : the references' file-name tag (bench/converged_references.py --tag), "" for the committed ones."""
+    data = np.load(REFERENCES / FILES[name].replace("_INDIRECT", f"{tag}_INDIRECT"))
     names = [k[4:] for k in data if k.startswith("cov_")]
     pair = [dict(images={n: data[f"{s}_{n}"] for n in names}, coverage={n: data[f"cov_{n}"] for n in names})
             for s in ("a", "b")]
     if name == "cornell":
         scene = bench_run.cornell_scene()[1]
     else:
-        scene = pickle.loads((SCENES / f"{name}.pkl").read_bytes())
+        tagged = SCENES / f"{name}{tag}.pkl"  # the same UVs (the unwrap is deterministic): either will do
+        scene = pickle.loads((tagged if tagged.exists() else SCENES / f"{name}.pkl").read_bytes())
     return scene, pair, float(data["noise"])
 
 
@@ -122,6 +124,8 @@ def main(argv=None):
     ap.add_argument("--seeds", default="0", help="seeds baked per row; two split the interior error into "
                     "PDIC's own seed-to-seed noise and its systematic error")
     ap.add_argument("--figure5", action="store_true")
+    ap.add_argument("--tag", default="", help="references baked with bench/converged_references.py --tag (e.g. _b52; "
+                    "for Blender 5.2's Cycles bake also --deviations edge_folding=0, as the add-on sets it there)")
     ap.add_argument("--deviations", default="", help="Deviations switches, e.g. path_visibility=1")
     ap.add_argument("--kernel-coverage", choices=("default", "on", "off"), default="default",
                     help="force E_k's surface-coverage kernel on or off at both qualities")
@@ -131,7 +135,7 @@ def main(argv=None):
         chosen, on = pipeline.cache_parameters, args.kernel_coverage == "on"
         pipeline.cache_parameters = lambda *a: replace(chosen(*a), kernel_coverage=on)
     for name in args.scenes.split(","):
-        scene, pair, noise = load(name)
+        scene, pair, noise = load(name, args.tag)
         print(f"# {name}: reference noise {noise:.4f}", flush=True)
         photons = args.photons or preset(args.quality).photons
         if args.figure5:

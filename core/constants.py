@@ -256,6 +256,9 @@ HIT_GRID_MAX_CELLS = 4_000_000
 """The step widens until the whole grid holds at most this many cells (84 bytes each)."""
 HIT_GRID_CELLS_PER_HIT = 0.125
 """... and at most this many cells (both sides) per gathering hit expected (records x cells)."""
+OPEN_CELL_REACH = 0.9
+"""How far toward each corner of a grid cell its centroid's three visibility segments reach (deviation:
+open-cells, core/hit_radiance.py ``open_cells``): short of the triangle's edges, where neighbours meet it."""
 HIT_GRID_NEAR = 1.0
 """A gathering hit nearer to its record than this times its distance from its grid cell's centroid is
 shaded on its own (core/real_rays.py): the cell would stand for much of the record's hemisphere."""

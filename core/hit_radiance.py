@@ -24,7 +24,7 @@ import numpy as np
 
 from .albedo import albedo as albedo_at
 from .constants import (HIT_GRID_DIRECT_SAMPLES, HIT_GRID_MAX_CELLS, HIT_GRID_MAX_SIDE,
-                        HIT_GRID_SPACING, HIT_GRID_CELLS_PER_HIT)
+                        HIT_GRID_SPACING, HIT_GRID_CELLS_PER_HIT, OPEN_CELL_REACH)
 from .direct import shade_direct
 from .executor import TEXEL_CHUNK, slices
 
@@ -42,7 +42,9 @@ class HitGrid:
         per hit, its centroid read); albedo : (V, 3) float32 the cells' mean albedo, or None (hits then
         take their own); fallback : (2, V) int32 the nearest-photon fallback's pick at each centroid and
         side (:func:`~core.photon_fallback.nearest_photon_seen`, NOT_ASKED where a record accepted it),
-        which a later grid over the same cells reuses. Memory: 92 bytes per cell; V <= HIT_GRID_MAX_CELLS.
+        which a later grid over the same cells reuses; open : (2, V) bool, on each side, whether the
+        cell's centroid sees the cell's three corners (each pulled OPEN_CELL_REACH of the way in), or
+        None (deviation: open-cells). Memory: 94 bytes per cell; V <= HIT_GRID_MAX_CELLS.
     """
 
     side: np.ndarray
@@ -52,12 +54,14 @@ class HitGrid:
     centroid: np.ndarray
     albedo: np.ndarray | None = None
     fallback: np.ndarray | None = None
+    open: np.ndarray | None = None
 
     def lookup(self, triangle: np.ndarray, barycentric: np.ndarray, back: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
         """(E (h, 3) float64 of each hit's cell, the cell's centroid (h, 3), its albedo (h, 3) float64 or
-        None) at hits: triangle (h,) int64, Embree barycentric (h, 2), back (h,) bool (the ray reached
-        the side the face normal points away from)."""
+        None, whether the cell is open on the side met (h,) bool: a hit there sees the centroid without
+        an occlusion ray of its own) at hits: triangle (h,) int64, Embree barycentric (h, 2), back (h,)
+        bool (the ray reached the side the face normal points away from)."""
         L = self.side[triangle]
         u = np.clip(barycentric[:, 0], 0.0, 1.0)
         v = np.clip(barycentric[:, 1], 0.0, 1.0)
@@ -69,7 +73,9 @@ class HitGrid:
         cell = self.offset[triangle] + j * (2 * L - j) + 2 * i + upper
         E = np.take(self.E.reshape(-1, 3), back * self.E.shape[1] + cell, axis=0).astype(np.float64)
         rho = None if self.albedo is None else np.take(self.albedo, cell, axis=0).astype(np.float64)
-        return E, np.take(self.centroid, cell, axis=0), rho
+        is_open = (np.zeros(len(cell), bool) if self.open is None
+                   else np.take(self.open.reshape(-1), back * self.open.shape[1] + cell))
+        return E, np.take(self.centroid, cell, axis=0), rho, is_open
 
 
 def _centroids(positions: np.ndarray, triangle: np.ndarray, i: np.ndarray, j: np.ndarray, upper: np.ndarray,
@@ -122,6 +128,46 @@ def grid_cells(L: np.ndarray, offset: np.ndarray, triangle: np.ndarray) -> tuple
     return rest // 2, j, rest % 2 == 1
 
 
+def open_cells(positions: np.ndarray, caster, L: np.ndarray, offset: np.ndarray, triangle: np.ndarray,
+               centroid: np.ndarray, executor, progress) -> np.ndarray:
+    """(2, V) bool: on the side the face normal points to [0] and the other [1], does each cell's
+    centroid see its three corners, each pulled OPEN_CELL_REACH of the way toward the centroid (both ends
+    lifted off the surface, as a hit's occlusion ray to the centroid is; deviation: open-cells)?
+
+    A surface that separates part of a cell from its centroid (a wall standing on the triangle, a solid
+    the triangle runs into) crosses the cell: a line across a triangle leaves a corner on each side, so
+    one of the three segments meets it. Pulled in, the corners stay off the triangle's edges, where a
+    neighbouring surface meets it and would stop every segment at its end.
+    """
+    i, j, upper = grid_cells(L, offset, triangle)
+    Lc = L[triangle].astype(np.float64)
+    corners = np.take(positions, triangle, axis=0)
+    p0, e1, e2 = corners[:, 0], corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    # A lower cell's corners are (i, j), (i + 1, j), (i, j + 1) in grid steps; an upper cell's
+    # (i + 1, j + 1), (i, j + 1), (i + 1, j).
+    steps = np.where(upper[:, None, None], [[1, 1], [0, 1], [1, 0]], [[0, 0], [1, 0], [0, 1]])
+    normal = caster.face_normals[triangle].astype(np.float64)
+    out = np.ones((2, len(triangle)), bool)
+
+    def test(index, s):
+        view = caster.serial()  # the executor runs this chunk: trace on its thread
+        c, m = centroid[s], s.stop - s.start
+        points = []
+        for k in range(3):
+            u = (i[s] + steps[s, k, 0]) / Lc[s]
+            v = (j[s] + steps[s, k, 1]) / Lc[s]
+            corner = p0[s] + u[:, None] * e1[s] + v[:, None] * e2[s]
+            points.append(c + OPEN_CELL_REACH * (corner - c))
+        n = np.concatenate([normal[s], -normal[s]] * 3)  # (corner, side) blocks of m
+        seen = view.sides_visible(np.tile(c, (6, 1)), n, np.repeat(np.stack(points), 2, axis=0).reshape(-1, 3), n)
+        return seen.reshape(3, 2, m).all(axis=0)
+
+    chunks = slices(len(triangle), TEXEL_CHUNK)
+    for s, part in zip(chunks, executor.map_chunks(test, chunks, progress)):
+        out[:, s] = part
+    return out
+
+
 def cell_albedo(scene, L: np.ndarray, offset: np.ndarray, triangle: np.ndarray, executor, progress) -> np.ndarray:
     """(V, 3) float32 mean albedo over each cell at four points, the centroids of its four half-size
     sub-triangles (the cell's centroid and the three half way from it to its corners).
@@ -151,7 +197,7 @@ def cell_albedo(scene, L: np.ndarray, offset: np.ndarray, triangle: np.ndarray, 
 
 
 def build_hit_grid(scene, caster, indirect_at, R_min: float, hits: int, seed: int, stream, executor, progress,
-                   direct_from: HitGrid | None = None) -> tuple[HitGrid, dict]:
+                   direct_from: HitGrid | None = None, with_open_cells: bool = False) -> tuple[HitGrid, dict]:
     """The grid over ``scene``'s triangles and counters (cells, shadow rays, the lookups' rays).
 
     indirect_at : callable (q (m, 3), n (m, 3), known (2, m) or None) -> (E_indirect on the side n faces
@@ -161,8 +207,9 @@ def build_hit_grid(scene, caster, indirect_at, R_min: float, hits: int, seed: in
     hits : about how many hits will read the grid; it gets at most HIT_GRID_CELLS_PER_HIT of that
         in cells (both sides counted), so it costs a fraction of the hits it replaces.
     stream : the random stream of the centroids' shadow rays (core/constants.py).
-    direct_from : an earlier grid of this scene; its direct light and fallback picks are reused if its
-        cells are the same.
+    direct_from : an earlier grid of this scene; its direct light, fallback picks and open cells are
+        reused if its cells are the same.
+    with_open_cells : find the cells open on each side (:func:`open_cells`; deviation: open-cells).
     """
     positions = scene.geometry.positions
     budget = int(min(HIT_GRID_MAX_CELLS, HIT_GRID_CELLS_PER_HIT * hits / 2))
@@ -172,7 +219,14 @@ def build_hit_grid(scene, caster, indirect_at, R_min: float, hits: int, seed: in
     E = np.zeros((2, len(q), 3), np.float32)
     reuse = direct_from is not None and np.array_equal(direct_from.side, L)
     E_direct = direct_from.E_direct if reuse else np.zeros((2, len(q), 3), np.float32)
-    counters = {"hit_grid_cells": len(q), "hit_grid_shadow_rays": 0, "hit_grid_lookup_rays": 0}
+    counters = {"hit_grid_cells": len(q), "hit_grid_shadow_rays": 0, "hit_grid_lookup_rays": 0, "hit_grid_open_rays": 0}
+    opened = None
+    if with_open_cells:
+        if reuse and direct_from.open is not None:
+            opened = direct_from.open
+        else:
+            opened = open_cells(positions, caster, L, offset, triangle, q, executor, progress)
+            counters["hit_grid_open_rays"] = 6 * len(q)
     albedo = direct_from.albedo if reuse else cell_albedo(scene, L, offset, triangle, executor, progress)
     for side, n in enumerate((normal, -normal)):
         if not reuse:
@@ -189,4 +243,4 @@ def build_hit_grid(scene, caster, indirect_at, R_min: float, hits: int, seed: in
         E[side] = E_direct[side] + E_indirect
     counters["hit_grid_lookup_rays"] += sum(part[2] for part in parts)
     fallback = np.concatenate([part[3] for part in parts], axis=1).astype(np.int32) if parts else None
-    return HitGrid(L, offset, E, E_direct, q, albedo, fallback), counters
+    return HitGrid(L, offset, E, E_direct, q, albedo, fallback, opened), counters

@@ -168,7 +168,7 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
     # hit sees its centroid and the cell is small as the record sees it. A record 2 cm in front of a
     # wall (tracery, a pipe, a frame) gathers mostly from the wall patch right behind it, which a
     # cell's centroid in the open would light.
-    E, centroid, rho = sources.hit_grid.lookup(triangle, barycentric, back)
+    E, centroid, rho, is_open = sources.hit_grid.lookup(triangle, barycentric, back)
     near = _near_cell(q, centroid, distance)
     gap = np.zeros(len(q), bool)
     if sources.deviations.gap_gathering and n_record is not None:  # deviation: gap-gathering
@@ -180,7 +180,8 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
             # corner, miss how the surface hides the wall's lower hemisphere.
             height = distance * np.einsum("ij,ij->i", direction, n_record)
             gap |= within & (height < CORNER_HEIGHT * sources.gap_reach)
-    far = np.flatnonzero(~near & ~gap)
+    # deviation: open-cells: in a cell whose centroid sees its corners, a hit sees the centroid.
+    far = np.flatnonzero(~near & ~gap & ~is_open)
     alone = near & ~gap
     alone[far] = ~caster.sides_visible(q[far], n_hit[far], centroid[far], n_hit[far])
     own, in_gap = np.flatnonzero(alone), np.flatnonzero(gap)
@@ -281,11 +282,13 @@ def _exits_on_grid(caster, sources, y: np.ndarray, n_y: np.ndarray, far: np.ndar
     records' lookup (Sponza 16/m: corner-gathering's +7-17 % CPU became +-1 %). Walks run only with
     the hit grid (:func:`radiance_at_hits`)."""
     candidate = np.flatnonzero(far)
-    E, centroid, _ = sources.hit_grid.lookup(triangle[candidate], barycentric[candidate], back[candidate])
+    E, centroid, _, is_open = sources.hit_grid.lookup(triangle[candidate], barycentric[candidate], back[candidate])
     small = ~_near_cell(y[candidate], centroid, t[candidate])
-    candidate, E, centroid = candidate[small], E[small], centroid[small]
-    seen = caster.sides_visible(y[candidate], n_y[candidate], centroid, n_y[candidate])
-    return candidate[seen], E[seen], len(candidate)
+    candidate, E, centroid, is_open = candidate[small], E[small], centroid[small], is_open[small]
+    ask = np.flatnonzero(~is_open)  # deviation: open-cells
+    seen = is_open.copy()
+    seen[ask] = caster.sides_visible(y[candidate[ask]], n_y[candidate[ask]], centroid[ask], n_y[candidate[ask]])
+    return candidate[seen], E[seen], len(ask)
 
 
 def _near_cell(q: np.ndarray, centroid: np.ndarray, distance: np.ndarray) -> np.ndarray:

@@ -104,8 +104,9 @@ def gather_sources(density: PhotonDensity, lighting: PhotonLighting, records: Ir
 
     hits = len(records) * settings.hemisphere_theta * settings.hemisphere_phi
     grid, counters = build_hit_grid(scene, caster, indirect_at, params.R_min, hits, settings.seed,
-                                    [STREAM_HIT_GRID, use], executor, progress, direct_from)
-    caster.rays_cast += counters["hit_grid_lookup_rays"]
+                                    [STREAM_HIT_GRID, use], executor, progress, direct_from,
+                                    settings.deviations.open_cells)
+    caster.rays_cast += counters["hit_grid_lookup_rays"] + counters["hit_grid_open_rays"]
     return replace(sources, hit_grid=grid), counters
 
 

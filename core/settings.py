@@ -61,6 +61,9 @@ class Deviations:
     hit_grid: bool = True
     """Pass 3: a gathering hit that sees its cell's centroid reads E_direct + E_indirect from a grid of
     cells on its triangle, computed once per cell, instead of a record lookup and shadow rays of its own."""
+    open_cells: bool = True
+    """Pass 3 (with hit_grid): a hit in a grid cell whose centroid sees the cell's three corners reads the
+    cell without an occlusion ray of its own (a wall that cuts the cell cuts one of those three lines)."""
     gap_gathering: bool = True
     """Pass 3 (with hit_grid): a hit near its record whose surface faces the record's gathers its indirect
     light by a walk of its own (bouncing while it stays in the gap) instead of the records around it."""

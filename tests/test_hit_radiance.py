@@ -8,7 +8,7 @@ import numpy as np
 from pdic.core.executor import make_executor
 from pdic.core import scene as sc
 from pdic.core.albedo import albedo
-from pdic.core.hit_radiance import HitGrid, build_hit_grid, cell_albedo, grid_points, grid_sides
+from pdic.core.hit_radiance import HitGrid, build_hit_grid, cell_albedo, grid_points, grid_sides, open_cells
 from pdic.core.pipeline import bake
 from pdic.core.rays import RayCaster
 from pdic.core.scene import PointLight
@@ -36,8 +36,8 @@ def test_each_cell_centroid_reads_its_own_cell_on_either_side():
     E[0, :, 0] = np.arange(len(q))
     E[1, :, 1] = np.arange(len(q))
     grid = HitGrid(L, offset, E, E, q)
-    front, centroid, _ = grid.lookup(triangle, uv, np.zeros(len(q), bool))
-    back, _, _ = grid.lookup(triangle, uv, np.ones(len(q), bool))
+    front, centroid, _, _ = grid.lookup(triangle, uv, np.zeros(len(q), bool))
+    back, _, _, _ = grid.lookup(triangle, uv, np.ones(len(q), bool))
     assert np.allclose(centroid, q)
     assert np.array_equal(front[:, 0], np.arange(len(q))) and not front[:, 1].any()
     assert np.array_equal(back[:, 1], np.arange(len(q))) and not back[:, 0].any()
@@ -76,6 +76,31 @@ def test_a_cell_holds_the_direct_light_of_its_centroid_and_nothing_behind():
     lit = 0 if (facing > 0).all() else 1  # the side that faces the lamp
     assert np.allclose(grid.E[lit, :, 0], expected, rtol=1e-5)
     assert not grid.E[1 - lit].any()
+
+
+def test_a_cell_a_wall_crosses_is_closed_and_one_clear_of_it_open():
+    """A 1 m floor with a 1 mm wall standing across it at x = 0.43 (deviation: open-cells): on the floor's
+    top side the cells the wall crosses are closed (a hit there must test whether it sees the centroid),
+    the others open; underneath, where nothing stands, every cell is open. Cells of the wall itself
+    stand on the floor, at their triangles' edges, and are open."""
+    floor = quad([0, 0, 0], [1, 0, 0], [0, 1, 0])
+    wall = np.concatenate([quad([0.43, 0, 0], [0, 1, 0], [0, 0, 0.5]), quad([0.431, 0, 0], [0, 0, 0.5], [0, 1, 0])])
+    positions = np.concatenate([floor, wall])
+    caster = RayCaster(positions, executor=make_executor(1))
+    L = np.array([10, 10, 4, 4, 4, 4])
+    offset, triangle, q = grid_points(positions, L)
+    opened = open_cells(positions, caster, L, offset, triangle, q, make_executor(1), None)
+    on_floor = triangle < 2
+    # Cells 0.1 m across: a wall within 1.2 cm of a centroid runs through its three segments' triangle
+    # (whose inradius is 0.9 x the cell's, 2.6 cm or more); one 10 cm off misses them all.
+    crossed = on_floor & (np.abs(q[:, 0] - 0.4305) < 0.012)
+    far = on_floor & (np.abs(q[:, 0] - 0.4305) > 0.1)
+    up = 0 if caster.face_normals[0, 2] > 0 else 1
+    assert crossed.sum() >= 10 and far.sum() >= 100
+    assert not opened[up, crossed].any()
+    assert opened[up, far].all()
+    assert opened[1 - up, on_floor].all()
+    assert opened[:, ~on_floor].all()
 
 
 def test_the_switch_builds_the_grid_and_the_hole_records_reuse_its_direct_light():
