@@ -20,9 +20,10 @@ exactly 0), and they stay in the interior texels.
 than a ray offset the bakers see different geometry. On Sponza held (4 texels/m) 37 texels bake exactly 0
 in both Cycles seeds where PDIC finds them lit; same-facing duplicates explain 30 of them, opposite faces
 (a zero-thickness wall) 6 more. At five of the 37 the path referee traces 1.32, 1.32, 1.20, 0.77 and
-0.65 (PDIC 1.31, 1.28, 1.21, 0.72, 0.70). Four texels on one-triangle charts 4 cm long, in the seam where an ornament's mirrored
-halves meet at a plane, read 4.6 in Cycles and 1.2 in PDIC; there the referee traces 1.24 at a point and
-0.28 a millimetre away. Those 4 of 116,241 texels held 28 % of PDIC's systematic squared error.
+0.65 (PDIC 1.31, 1.28, 1.21, 0.72, 0.70). Four texels on one-triangle charts 4 cm long, in the seam
+where an ornament's mirrored halves meet at a plane, read 4.6 in Cycles and 1.2 in PDIC; there the
+referee traces 1.24 at a point and 0.28 a millimetre away. Those 4 of 116,241 texels held 28 % of
+PDIC's systematic squared error.
 
 The test casts, from COINCIDENT_EPSILONS epsilons above each sample, a ray back through it over
 twice that distance against the triangles of the other half of a random split of the mesh: a hit
@@ -47,7 +48,7 @@ def coincident_samples(positions: np.ndarray, p: np.ndarray, n: np.ndarray, tria
                        seed: int = 0, either_facing: bool = False) -> np.ndarray:
     """(m,) bool: samples p (m, 3) on ``triangle`` (m,) facing their face normal n (m, 3) through
     which another triangle of ``positions`` (T, 3, 3) facing the same side passes (within
-    COINCIDENT_EPSILONS epsilons)."""
+    COINCIDENT_EPSILONS epsilons); with ``either_facing`` one facing either side."""
     from pdic.core.rays import RayCaster
 
     p, n = np.asarray(p, np.float64), np.asarray(n, np.float64)

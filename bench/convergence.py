@@ -7,10 +7,11 @@
 Needs bench/converged_references.py's output (references in bench/references/, the one-object
 core scenes in bench/results/converged/). Per bake: bias = sum PDIC / sum reference - 1 over the
 texels both cover, the noise-corrected relative RMS error (bench/run.py), the same error over
-*comparable* texels (``bench.run.comparable_texels``: on no face duplicated in place, which Cycles
-bakes black; chart edges in) and over *interior* texels only (``bench.run.interior_texels``), photons
-stored and the bake's CPU seconds (``threads=1``). ``--figure5`` runs bench/run.py's [Chr99]-vs-Preview
-comparison against the same references instead.
+*comparable* texels (``bench.run.comparable_texels``: no other face within two ray offsets of a
+sample, where Cycles' bake rays see other geometry than PDIC's; chart edges in) and over *interior*
+texels only (``bench.run.interior_texels``), photons stored and the bake's CPU seconds
+(``threads=1``). ``--figure5`` runs bench/run.py's [Chr99]-vs-Preview comparison against the same
+references instead.
 """
 from __future__ import annotations
 
@@ -124,8 +125,8 @@ def main(argv=None):
     ap.add_argument("--seeds", default="0", help="seeds baked per row; two split the interior error into "
                     "PDIC's own seed-to-seed noise and its systematic error")
     ap.add_argument("--figure5", action="store_true")
-    ap.add_argument("--tag", default="", help="references baked with bench/converged_references.py --tag (e.g. _b52; "
-                    "for Blender 5.2's Cycles bake also --deviations edge_folding=0, as the add-on sets it there)")
+    ap.add_argument("--tag", default="", help="references baked with bench/converged_references.py --tag "
+                    "(e.g. _b52; for Blender 5.2's Cycles also --deviations edge_folding=0, as the add-on sets it)")
     ap.add_argument("--deviations", default="", help="Deviations switches, e.g. path_visibility=1")
     ap.add_argument("--kernel-coverage", choices=("default", "on", "off"), default="default",
                     help="force E_k's surface-coverage kernel on or off at both qualities")
