@@ -15,7 +15,7 @@ the Cornell box none. Faces glued back to back (a stair on a stair, a wall on it
 each other's solids; both bakers find them dark (the building's 38,940 such texels: 94 % and 96 %
 exactly 0), and they stay in the interior texels.
 
-``either_facing`` counts a triangle passing through the sample facing either way: the texels
+*Either facing*, a triangle passing through the sample facing either way marks the texels
 ``bench.run.comparable_texels`` leaves out, chart edges included. Where a face lies closer to the sample
 than a ray offset the bakers see different geometry. On Sponza held (4 texels/m) 37 texels bake exactly 0
 in both Cycles seeds where PDIC finds them lit; same-facing duplicates explain 30 of them, opposite faces
@@ -45,23 +45,23 @@ SPLITS = 8
 
 
 def coincident_samples(positions: np.ndarray, p: np.ndarray, n: np.ndarray, triangle: np.ndarray,
-                       seed: int = 0, either_facing: bool = False) -> np.ndarray:
-    """(m,) bool: samples p (m, 3) on ``triangle`` (m,) facing their face normal n (m, 3) through
-    which another triangle of ``positions`` (T, 3, 3) facing the same side passes (within
-    COINCIDENT_EPSILONS epsilons); with ``either_facing`` one facing either side."""
+                       seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """((m,) bool, (m,) bool): samples p (m, 3) on ``triangle`` (m,) facing their face normal n (m, 3)
+    through which another triangle of ``positions`` (T, 3, 3) passes (within COINCIDENT_EPSILONS
+    epsilons) facing the same side, and facing either side (*either facing* above), from one pass."""
     from pdic.core.rays import RayCaster
 
     p, n = np.asarray(p, np.float64), np.asarray(n, np.float64)
-    out = np.zeros(len(p), bool)
+    same, either = np.zeros(len(p), bool), np.zeros(len(p), bool)
     if len(p) == 0 or len(positions) < 2:
-        return out
+        return same, either
     delta = COINCIDENT_EPSILONS * RayCaster(positions).epsilon
     rng = np.random.default_rng(seed)
     for _ in range(SPLITS):
         half = rng.random(len(positions)) < 0.5
         for side in (False, True):
             others = np.flatnonzero(half != side)
-            own = np.flatnonzero((half[triangle] == side) & ~out)
+            own = np.flatnonzero((half[triangle] == side) & ~same)  # a same-facing sample is settled both ways
             if len(others) == 0 or len(own) == 0:
                 continue
             caster = RayCaster(positions[others])
@@ -70,9 +70,9 @@ def coincident_samples(positions: np.ndarray, p: np.ndarray, n: np.ndarray, tria
             # Off the other triangle's edges: a sample on an edge two coplanar neighbours share is
             # no overlap.
             inside = hits.hit & (np.minimum(np.minimum(u, v), 1.0 - u - v) > EDGE_MARGIN)
+            either[own[inside]] = True
             # Facing the same way: a duplicate. Two faces glued back to back (a stair on a stair, a
             # wall on its slab) face into each other's solids, and both bakers find them dark.
             facing = np.einsum("ij,ij->i", caster.face_normals[np.maximum(hits.triangle, 0)], n[own]) > 0
-            inside &= facing | either_facing
-            out[own[inside]] = True
-    return out
+            same[own[inside & facing]] = True
+    return same, either

@@ -256,10 +256,9 @@ def texel_masks(scene, texel_samples: int = 2) -> dict:
             return np.bincount(points.texel[samples], minlength=H * W).reshape(H, W) > 0
 
         count = np.bincount(points.texel, minlength=H * W).reshape(H, W)
-        full = (count == texel_samples ** 2) & ~texels_with(
-            coincident_samples(positions, points.p, points.n_geometric, points.triangle))
-        comparable = ~texels_with(coincident_samples(positions, points.p, points.n_geometric, points.triangle,
-                                                     either_facing=True))
+        same, either = coincident_samples(positions, points.p, points.n_geometric, points.triangle)
+        full = (count == texel_samples ** 2) & ~texels_with(same)
+        comparable = ~texels_with(either)
         covered = np.pad(count > 0, 1)
         for dy in (-1, 0, 1):
             for dx in (-1, 0, 1):
