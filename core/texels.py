@@ -142,12 +142,12 @@ def lift_texels(scene: Scene, samples_per_axis: int, map=map, crease_folding: bo
     for target in scene.targets:
         keep = areas[target.triangles] > 0
         local = np.flatnonzero(keep)
-        samples = rasterize(target.lightmap_uv[local], target.width, target.height, samples_per_axis, map,
-                            edge_folding)
+        uv = target.lightmap_uv[local]
+        samples = rasterize(uv, target.width, target.height, samples_per_axis, map, edge_folding)
         centre = samples.centre_triangle.reshape(-1)
         tri_local, b, folded = samples.triangle, samples.barycentric, 0  # b: weights of corners 0, 1, 2
         if crease_folding:
-            tri_local, b, folded = fold_across_creases(samples.texel, tri_local, b, centre, target.lightmap_uv[local],
+            tri_local, b, folded = fold_across_creases(samples.texel, tri_local, b, centre, uv,
                                                        face_n[target.triangles[local]], target.width, target.height)
         tri = target.triangles[local[tri_local]]
         chunks = slices(len(tri), LIFT_CHUNK) or [slice(0, 0)]
@@ -188,16 +188,16 @@ def footprint_texel_points(scene: Scene, target_index: int, texels: np.ndarray, 
         do (deviation: crease-folding).
     """
     geometry = scene.geometry
+    face_n = geometry.face_normals()
     target = scene.targets[target_index]
     local = np.flatnonzero(geometry.areas()[target.triangles] > 0)
     uv = target.lightmap_uv[local]
     texel, tri_local, b = footprint_points(uv, target.width, target.height, texels, per_axis, rng, side)
     if centre_triangle is not None and len(texel):
         tri_local, b, _ = fold_across_creases(texel, tri_local, b, centre_triangle, uv,
-                                              geometry.face_normals()[target.triangles[local]], target.width,
-                                              target.height)
+                                              face_n[target.triangles[local]], target.width, target.height)
     tri = target.triangles[local[tri_local]]
-    p, n_s, n_g = _on_surface(geometry, geometry.face_normals(), tri, b)
+    p, n_s, n_g = _on_surface(geometry, face_n, tri, b)
     counts = np.bincount(texel, minlength=target.width * target.height)
     weight = (1.0 / np.maximum(counts[texel], 1)).astype(np.float32)
     return TexelPoints(p, n_s, n_g, tri, b[:, 1:3].copy(), np.full(len(tri), target_index, np.int32), texel, weight)
