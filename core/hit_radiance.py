@@ -84,9 +84,14 @@ def _centroids(positions: np.ndarray, triangle: np.ndarray, i: np.ndarray, j: np
     at barycentric ((i + 1/3) / L, (j + 1/3) / L), an upper cell's at ((i + 2/3) / L, (j + 2/3) / L)."""
     third = np.where(upper, 2 / 3, 1 / 3)
     corners = np.take(positions, triangle, axis=0)  # np.take: a fraction of fancy indexing's cost
+    return _at_grid_steps(corners, i + third, j + third, L)
+
+
+def _at_grid_steps(corners: np.ndarray, x: np.ndarray, y: np.ndarray, L: np.ndarray) -> np.ndarray:
+    """(n, 3) world points at (x, y) grid steps (n,) of side-L grids (n,) on triangles ``corners`` (n, 3, 3):
+    barycentric (x / L, y / L), the weights of corners 1 and 2."""
     p0 = corners[:, 0]
-    return (p0 + ((i + third) / L)[:, None] * (corners[:, 1] - p0)
-            + ((j + third) / L)[:, None] * (corners[:, 2] - p0))
+    return p0 + (x / L)[:, None] * (corners[:, 1] - p0) + (y / L)[:, None] * (corners[:, 2] - p0)
 
 
 def grid_sides(positions: np.ndarray, spacing: float, budget: int) -> np.ndarray:
@@ -142,7 +147,6 @@ def open_cells(positions: np.ndarray, caster, L: np.ndarray, offset: np.ndarray,
     i, j, upper = grid_cells(L, offset, triangle)
     Lc = L[triangle].astype(np.float64)
     corners = np.take(positions, triangle, axis=0)
-    p0, e1, e2 = corners[:, 0], corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
     # A lower cell's corners are (i, j), (i + 1, j), (i, j + 1) in grid steps; an upper cell's
     # (i + 1, j + 1), (i, j + 1), (i + 1, j).
     steps = np.where(upper[:, None, None], [[1, 1], [0, 1], [1, 0]], [[0, 0], [1, 0], [0, 1]])
@@ -154,9 +158,7 @@ def open_cells(positions: np.ndarray, caster, L: np.ndarray, offset: np.ndarray,
         c, m = centroid[s], s.stop - s.start
         points = []
         for k in range(3):
-            u = (i[s] + steps[s, k, 0]) / Lc[s]
-            v = (j[s] + steps[s, k, 1]) / Lc[s]
-            corner = p0[s] + u[:, None] * e1[s] + v[:, None] * e2[s]
+            corner = _at_grid_steps(corners[s], i[s] + steps[s, k, 0], j[s] + steps[s, k, 1], Lc[s])
             points.append(c + OPEN_CELL_REACH * (corner - c))
         n = np.concatenate([normal[s], -normal[s]] * 3)  # (corner, side) blocks of m
         seen = view.sides_visible(np.tile(c, (6, 1)), n, np.repeat(np.stack(points), 2, axis=0).reshape(-1, 3), n)
