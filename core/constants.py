@@ -267,12 +267,15 @@ GAP_COS = 0.5
 of facing the record's lies in a gap between the two surfaces and gathers its own indirect light; a walk's
 vertex that faces the one before it so, within a R_min, is still in the gap (deviation: gap-gathering,
 core/real_rays.py)."""
-CORNER_HEIGHT = 0.25
-"""A gathering hit within a R_min of its record and at most this fraction of a R_min above the record's
-tangent plane stands at the foot of a surface rising from the record's (a wall above a ledge) and gathers
-its own indirect light by the gap walk, facing the record or not (deviation: corner-gathering,
-core/real_rays.py). The ledges this is for are narrower than a R_min: the cathedral's mouldings stick out
-20 cm under a 16 cm a R_min. Measured: docs/DEVIATIONS.md corner-gathering."""
+CORNER_REACH = 2.5
+"""A gathering hit within this many a R_min of its record and at most CORNER_HEIGHT a R_min above the
+record's tangent plane stands at the foot of a surface rising from the record's (a wall above a ledge) and
+gathers its own indirect light by the gap walk, facing the record or not (deviation: corner-gathering,
+core/real_rays.py). Pass 2's records and photons read on that wall stay flat over a zone where its light
+falls toward the corner: on the cathedral's mouldings, a ledge 5-10 cm from the nave wall, the wall's hits
+2-30 cm above the ledge and 10-60 cm from the record. Measured: docs/DEVIATIONS.md corner-gathering."""
+CORNER_HEIGHT = 1.0
+"""... and at most this many a R_min above the record's tangent plane (see CORNER_REACH)."""
 GAP_WALK_BOUNCES = 32
 """Most vertices of a gap hit's walk (deviation: gap-gathering, core/real_rays.py:gap_irradiance), which
 Russian roulette on the albedo ends sooner (at albedo 0.8, 5 on average); 1 reads records at the walk's

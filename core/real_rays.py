@@ -18,7 +18,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .albedo import albedo as albedo_at
-from .constants import (CORNER_HEIGHT, GAP_COS, GAP_WALK_BOUNCES, GAP_WALK_SURVIVAL, HIT_GRID_NEAR,
+from .constants import (CORNER_HEIGHT, CORNER_REACH, GAP_COS, GAP_WALK_BOUNCES, GAP_WALK_SURVIVAL, HIT_GRID_NEAR,
                         TRANSPARENT_MAX_LAYERS)
 from .direct import direct_irradiance
 from .gather_cells import CellSums
@@ -157,8 +157,8 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
     Hits whose surface faces the record's (``n_record`` (h, 3), each hit's record normal), near ones
     and those within ``sources.gap_reach`` of the record, lie in a gap and gather their indirect light
     by a walk of their own (deviation: gap-gathering, :func:`gap_irradiance`); so do hits within
-    ``sources.gap_reach`` and CORNER_HEIGHT of it above the record's tangent plane, at the foot of a
-    surface rising from the record's (deviation: corner-gathering).
+    CORNER_REACH ``sources.gap_reach`` of the record and CORNER_HEIGHT of it above the record's tangent
+    plane, at the foot of a surface rising from the record's (deviation: corner-gathering).
     """
     back, n_hit = side_met(caster.face_normals, triangle, direction)
     if sources.hit_grid is None:
@@ -179,7 +179,7 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
             # At the foot of a wall rising from the record's surface the records' zones, wider than the
             # corner, miss how the surface hides the wall's lower hemisphere.
             height = distance * np.einsum("ij,ij->i", direction, n_record)
-            gap |= within & (height < CORNER_HEIGHT * sources.gap_reach)
+            gap |= (distance < CORNER_REACH * sources.gap_reach) & (height < CORNER_HEIGHT * sources.gap_reach)
     # deviation: open-cells: in a cell whose centroid sees its corners, a hit sees the centroid.
     far = np.flatnonzero(~near & ~gap & ~is_open)
     alone = near & ~gap
