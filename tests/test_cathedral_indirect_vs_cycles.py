@@ -14,7 +14,9 @@ at half Cycles' light or less, 5.8 % off by more than 20 % (before 0.995, 2.1 %,
 3.13 / bpy 5.2.3, whose unwrap and Cycles differ, 1,583 blocks, 0.991, 3.4 %, 5.4 % (before 0.991,
 3.5 %, 8.3 %). Session 25's gradient limit (0.3 x E_k across a zone, docs/DEVIATIONS.md
 gradient-limiting), Python 3.11: 0.997, 2.1 %, 5.6 %; session 26's gap-fill one texel wide and
-per-sample lookups in zones under 16 texels (docs/DEVIATIONS.md gap-fill, fine-zones): 0.997, 2.1 %, 5.4 %.
+per-sample lookups in zones under 16 texels (docs/DEVIATIONS.md gap-fill, fine-zones): 0.997, 2.1 %, 5.4 %;
+session 34's wider corner-gathering (hits up to 2.5 a R_min away, a R_min high): 0.997, 2.1 %, 4.2 %
+(Python 3.13 / bpy 5.2.3: 0.991, 3.5 %, 3.9 %).
 Before, with Blender's default surface (a Principled BSDF to Cycles, whose specular layer takes 3 %
 of the indirect light; PDIC reads diffuse 0.8 either way), 1.027, 2.1 %, 9.7 %. Session 22 rebuilt
 the stairs as one solid flight (they were nested boxes whose coplanar flanks Cycles bakes black);
