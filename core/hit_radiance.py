@@ -145,22 +145,22 @@ def open_cells(positions: np.ndarray, caster, L: np.ndarray, offset: np.ndarray,
     neighbouring surface meets it and would stop every segment at its end.
     """
     i, j, upper = grid_cells(L, offset, triangle)
-    Lc = L[triangle].astype(np.float64)
-    corners = np.take(positions, triangle, axis=0)
-    # A lower cell's corners are (i, j), (i + 1, j), (i, j + 1) in grid steps; an upper cell's
-    # (i + 1, j + 1), (i, j + 1), (i + 1, j).
-    steps = np.where(upper[:, None, None], [[1, 1], [0, 1], [1, 0]], [[0, 0], [1, 0], [0, 1]])
-    normal = caster.face_normals[triangle].astype(np.float64)
     out = np.ones((2, len(triangle)), bool)
 
     def test(index, s):
         view = caster.serial()  # the executor runs this chunk: trace on its thread
-        c, m = centroid[s], s.stop - s.start
+        c, m, t = centroid[s], s.stop - s.start, triangle[s]
+        # Per chunk: the cells' triangles' corners and normals would be 96 bytes per cell at once.
+        corners, Lc = np.take(positions, t, axis=0), L[t].astype(np.float64)
+        normal = caster.face_normals[t].astype(np.float64)
+        # A lower cell's corners are (i, j), (i + 1, j), (i, j + 1) in grid steps; an upper cell's
+        # (i + 1, j + 1), (i, j + 1), (i + 1, j).
+        steps = np.where(upper[s, None, None], [[1, 1], [0, 1], [1, 0]], [[0, 0], [1, 0], [0, 1]])
         points = []
         for k in range(3):
-            corner = _at_grid_steps(corners[s], i[s] + steps[s, k, 0], j[s] + steps[s, k, 1], Lc[s])
+            corner = _at_grid_steps(corners, i[s] + steps[:, k, 0], j[s] + steps[:, k, 1], Lc)
             points.append(c + OPEN_CELL_REACH * (corner - c))
-        n = np.concatenate([normal[s], -normal[s]] * 3)  # (corner, side) blocks of m
+        n = np.concatenate([normal, -normal] * 3)  # (corner, side) blocks of m
         seen = view.sides_visible(np.tile(c, (6, 1)), n, np.repeat(np.stack(points), 2, axis=0).reshape(-1, 3), n)
         return seen.reshape(3, 2, m).all(axis=0)
 
