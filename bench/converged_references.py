@@ -6,8 +6,8 @@ Each reference is a pair of Cycles INDIRECT bakes with seeds 1 and 2 (``spp`` sa
 so its own noise is known: rms(b1 - b2) / sqrt 2 per bake, and a comparison against the pair
 subtracts it (bench/run.py ``noise_corrected_error``). Written to bench/references/:
 
-- ``cornell_point_64_{2 spp}_64_INDIRECT.npz``: the Cornell sample blend's ``LightMap`` at 64^2
-  per object, the pair averaged (the format of tests/cycles_reference.py ``reference``), plus the
+- ``cornell_point_64_{2 spp}_64_INDIRECT.npz`` and ``cornell_area_64_{2 spp}_64_INDIRECT.npz`` (``--only
+  cornell_area``): the Cornell sample blends' ``LightMap`` at 64^2 per object, the pair averaged (the format of tests/cycles_reference.py ``reference``), plus the
   pair itself (``a_*``, ``b_*``) and ``noise`` (relative, of the average).
 - ``{scene}_one_d{density}_{spp}x2_64_INDIRECT.npz``: Sponza joined into one object, and the
   occluded building (bench/scenes.py), in the add-on's ``PDIC_Lightmap`` at ``density`` texels/m:
@@ -45,7 +45,7 @@ REFERENCES = ROOT / "bench" / "references"
 SCENES = ROOT / "bench" / "results" / "converged"
 BOUNCES = 64
 """Cycles diffuse (and total) bounces: converged (Sponza warms up to 16 diffuse bounces)."""
-PLAN = {"cornell": dict(spp=1024, density=None), "sponza": dict(spp=512, density=4.0),
+PLAN = {"cornell": dict(spp=1024, density=None), "cornell_area": dict(spp=1024, density=None), "sponza": dict(spp=512, density=4.0),
         "occluded": dict(spp=2048, density=4.0), "occluded_held": dict(spp=1024, density=4.0),
         "sponza_held": dict(spp=512, density=4.0)}
 """Samples per bake of each pair (Cornell: 2 x 1024 on a machine shared by six jobs) and texel density
@@ -96,11 +96,13 @@ def save_pair(path: Path, pair, seconds: float, averaged: bool) -> float:
     return noise
 
 
-def cornell(spp: int) -> None:
-    objects = bench_scenes.load_cornell("cornell_point")
+def cornell(spp: int, blend: str = "cornell_point") -> None:
+    """A Cornell sample blend (``cornell_point``: the point light under the ceiling; ``cornell_area``: the
+    ceiling's area light) at 64^2 per object in its ``LightMap`` UVs."""
+    objects = bench_scenes.load_cornell(blend)
     sizes = {o.name: (64, 64) for o in objects}
     pair, seconds = seed_pair(objects, "LightMap", sizes, spp)
-    save_pair(REFERENCES / f"cornell_point_64_{2 * spp}_{BOUNCES}_INDIRECT.npz", pair, seconds, averaged=True)
+    save_pair(REFERENCES / f"{blend}_64_{2 * spp}_{BOUNCES}_INDIRECT.npz", pair, seconds, averaged=True)
 
 
 def join(objects: list) -> list:
@@ -140,9 +142,9 @@ def main(argv=None):
     pdic_addon.register()
     for name in [s.strip() for s in args.only.split(",") if s.strip()]:
         plan = PLAN[name]
-        if name == "cornell":
+        if name.startswith("cornell"):
             if not args.scenes_only:
-                cornell(plan["spp"])
+                cornell(plan["spp"], "cornell_point" if name == "cornell" else name)
         else:
             one_object(name, plan["spp"], plan["density"], args.scenes_only, args.tag)
 

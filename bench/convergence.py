@@ -35,7 +35,7 @@ from pdic.core.settings import preset  # noqa: E402
 
 REFERENCES = ROOT / "bench" / "references"
 SCENES = ROOT / "bench" / "results" / "converged"
-FILES = {"cornell": "cornell_point_64_2048_64_INDIRECT.npz", "occluded": "occluded_one_d4_2048x2_64_INDIRECT.npz",
+FILES = {"cornell": "cornell_point_64_2048_64_INDIRECT.npz", "cornell_area": "cornell_area_64_2048_64_INDIRECT.npz", "occluded": "occluded_one_d4_2048x2_64_INDIRECT.npz",
          "sponza": "sponza_one_d4_512x2_64_INDIRECT.npz",
          "occluded_held": "occluded_held_one_d4_1024x2_64_INDIRECT.npz",
          "sponza_held": "sponza_held_one_d4_512x2_64_INDIRECT.npz"}
@@ -50,8 +50,8 @@ def load(name: str, tag: str = ""):
     names = [k[4:] for k in data if k.startswith("cov_")]
     pair = [dict(images={n: data[f"{s}_{n}"] for n in names}, coverage={n: data[f"cov_{n}"] for n in names})
             for s in ("a", "b")]
-    if name == "cornell":
-        scene = bench_run.cornell_scene()[1]
+    if name.startswith("cornell"):
+        scene = bench_run.cornell_scene(blend="cornell_point" if name == "cornell" else name)[1]
     else:
         tagged = SCENES / f"{name}{tag}.pkl"  # the same UVs (the unwrap is deterministic): either will do
         scene = pickle.loads((tagged if tagged.exists() else SCENES / f"{name}.pkl").read_bytes())

@@ -104,8 +104,8 @@ def timed(fn, *args, **kw):
     return out, time.perf_counter() - t
 
 
-def cornell_scene(res: int = CORNELL_RES):
-    objects = bench_scenes.load_cornell("cornell_point")
+def cornell_scene(res: int = CORNELL_RES, blend: str = "cornell_point"):
+    objects = bench_scenes.load_cornell(blend)
     return objects, bench_scenes.extract_lightmap_uv(objects, res)
 
 
