@@ -70,7 +70,8 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
         if len(fine):
             E_fine, w_fine = interpolate(filled.cache, params.a, settings.gradients, valid_points.p[fine],
                                          valid_points.n_shading[fine], executor, progress,
-                                         caster=_record_visibility(caster, params), sky=sky is not None)
+                                         caster=_record_visibility(caster, params), sky=sky is not None,
+                                         layers=settings.refine)
             covered = w_fine > 0
             E[valid[fine[covered]]] = E_fine[covered]
         if len(crevice):
@@ -148,7 +149,8 @@ def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | N
 
     def lookup(c, index, caster=seeing, margin=0.0):
         return interpolate(c, params.a, settings.gradients, points.p[index], points.n_shading[index], executor,
-                           progress, with_zone=True, caster=caster, margin=margin, sky=sky is not None)
+                           progress, with_zone=True, caster=caster, margin=margin, sky=sky is not None,
+                           layers=settings.refine)
 
     E, w, smallest = lookup(cache, slice(None))
     hole_records, counters = 0, {}
