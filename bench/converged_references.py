@@ -7,8 +7,9 @@ so its own noise is known: rms(b1 - b2) / sqrt 2 per bake, and a comparison agai
 subtracts it (bench/run.py ``noise_corrected_error``). Written to bench/references/:
 
 - ``cornell_point_64_{2 spp}_64_INDIRECT.npz`` and ``cornell_area_64_{2 spp}_64_INDIRECT.npz`` (``--only
-  cornell_area``): the Cornell sample blends' ``LightMap`` at 64^2 per object, the pair averaged (the format of tests/cycles_reference.py ``reference``), plus the
-  pair itself (``a_*``, ``b_*``) and ``noise`` (relative, of the average).
+  cornell_area``): the Cornell sample blends' ``LightMap`` at 64^2 per object, the pair averaged (the
+  format of tests/cycles_reference.py ``reference``), plus the pair itself (``a_*``, ``b_*``) and
+  ``noise`` (relative, of the average).
 - ``{scene}_one_d{density}_{spp}x2_64_INDIRECT.npz``: Sponza joined into one object, and the
   occluded building (bench/scenes.py), in the add-on's ``PDIC_Lightmap`` at ``density`` texels/m:
   ``a_*``, ``b_*``, ``cov_*``, ``seconds``, ``noise`` (relative, of one bake). The core scene the
@@ -45,8 +46,8 @@ REFERENCES = ROOT / "bench" / "references"
 SCENES = ROOT / "bench" / "results" / "converged"
 BOUNCES = 64
 """Cycles diffuse (and total) bounces: converged (Sponza warms up to 16 diffuse bounces)."""
-PLAN = {"cornell": dict(spp=1024, density=None), "cornell_area": dict(spp=1024, density=None), "sponza": dict(spp=512, density=4.0),
-        "occluded": dict(spp=2048, density=4.0), "occluded_held": dict(spp=1024, density=4.0),
+PLAN = {"cornell": dict(spp=1024, density=None), "cornell_area": dict(spp=1024, density=None),
+        "sponza": dict(spp=512, density=4.0), "occluded": dict(spp=2048, density=4.0), "occluded_held": dict(spp=1024, density=4.0),
         "sponza_held": dict(spp=512, density=4.0)}
 """Samples per bake of each pair (Cornell: 2 x 1024 on a machine shared by six jobs) and texel density
 (texels/m); a ``_held`` scene's map holds the density (the add-on's own sizing), the others' are

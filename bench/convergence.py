@@ -35,8 +35,8 @@ from pdic.core.settings import preset  # noqa: E402
 
 REFERENCES = ROOT / "bench" / "references"
 SCENES = ROOT / "bench" / "results" / "converged"
-FILES = {"cornell": "cornell_point_64_2048_64_INDIRECT.npz", "cornell_area": "cornell_area_64_2048_64_INDIRECT.npz", "occluded": "occluded_one_d4_2048x2_64_INDIRECT.npz",
-         "sponza": "sponza_one_d4_512x2_64_INDIRECT.npz",
+FILES = {"cornell": "cornell_point_64_2048_64_INDIRECT.npz", "cornell_area": "cornell_area_64_2048_64_INDIRECT.npz",
+         "occluded": "occluded_one_d4_2048x2_64_INDIRECT.npz", "sponza": "sponza_one_d4_512x2_64_INDIRECT.npz",
          "occluded_held": "occluded_held_one_d4_1024x2_64_INDIRECT.npz",
          "sponza_held": "sponza_held_one_d4_512x2_64_INDIRECT.npz"}
 """``*_held``: the scene at 4 texels/m held (maps grown to 272^2 and 796^2); the others' maps are

@@ -88,8 +88,9 @@ def gather_sources(density: PhotonDensity, lighting: PhotonLighting, records: Ir
     sky : :attr:`GatherSources.sky`.
     """
     radiance_out = lighting.radiance_out(density.photons.albedo) if settings.reuse_photon_paths else None
-    sources = GatherSources(density, lighting, CacheLookup(records, params.a, use_gradients=False, layers=True), radiance_out,
-                            settings.deviations, gap_reach=params.a * params.R_min, sky=sky)
+    lookup = CacheLookup(records, params.a, use_gradients=False, layers=True)
+    sources = GatherSources(density, lighting, lookup, radiance_out, settings.deviations,
+                            gap_reach=params.a * params.R_min, sky=sky)
     if not settings.deviations.hit_grid or scene is None:
         return sources, {}
     if progress is not None:

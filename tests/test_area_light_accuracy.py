@@ -1,7 +1,7 @@
 """The Cornell box lit by its ceiling's area light against converged Cycles (issue #11: scenes nobody tuned for).
 
 The other accuracy tests light the box with a point light; here the sample blend ``cornell_area``
-(a 0.2 m^2 area light under the ceiling: soft shadows, a lamp that photons leave from a surface) is
+(a 13 cm square area light under the ceiling: soft shadows, a lamp that photons leave from a surface) is
 compared with the committed pair of Cycles Diffuse Indirect bakes at 64^2 per object (64 diffuse
 bounces, sample clamping off, adaptive sampling off, 2 x 1,024 spp, seeds 1 and 2:
 ``bench/converged_references.py --only cornell_area``), the pair's own noise (4.2 % per texel
