@@ -47,7 +47,8 @@ SCENES = ROOT / "bench" / "results" / "converged"
 BOUNCES = 64
 """Cycles diffuse (and total) bounces: converged (Sponza warms up to 16 diffuse bounces)."""
 PLAN = {"cornell": dict(spp=1024, density=None), "cornell_area": dict(spp=1024, density=None),
-        "sponza": dict(spp=512, density=4.0), "occluded": dict(spp=2048, density=4.0), "occluded_held": dict(spp=1024, density=4.0),
+        "sponza": dict(spp=512, density=4.0), "occluded": dict(spp=2048, density=4.0),
+        "occluded_held": dict(spp=1024, density=4.0),
         "sponza_held": dict(spp=512, density=4.0)}
 """Samples per bake of each pair (Cornell: 2 x 1024 on a machine shared by six jobs) and texel density
 (texels/m); a ``_held`` scene's map holds the density (the add-on's own sizing), the others' are
