@@ -39,6 +39,7 @@ pdic_bootstrap.load()
 import bpy  # noqa: E402
 
 from pdic import pdic_addon  # noqa: E402
+from pdic.bench import run as bench_run  # noqa: E402
 from pdic.bench import scenes as bench_scenes  # noqa: E402
 from pdic.core.settings import preset  # noqa: E402
 
@@ -144,9 +145,9 @@ def main(argv=None):
     pdic_addon.register()
     for name in [s.strip() for s in args.only.split(",") if s.strip()]:
         plan = PLAN[name]
-        if name.startswith("cornell"):
+        if name in bench_run.CORNELL_BLENDS:
             if not args.scenes_only:
-                cornell(plan["spp"], "cornell_point" if name == "cornell" else name)
+                cornell(plan["spp"], bench_run.CORNELL_BLENDS[name])
         else:
             one_object(name, plan["spp"], plan["density"], args.scenes_only, args.tag)
 

@@ -46,25 +46,13 @@ sized from the surface area (bench/converged_references.py)."""
 def load(name: str, tag: str = ""):
     """(core scene, reference pair as two dicts of images/coverage, the reference's noise).
     tag : the references' file-name tag (bench/converged_references.py --tag), "" for the committed ones."""
-    data = np.load(REFERENCES / FILES[name].replace("_INDIRECT", f"{tag}_INDIRECT"))
-    names = [k[4:] for k in data if k.startswith("cov_")]
-    pair = [dict(images={n: data[f"{s}_{n}"] for n in names}, coverage={n: data[f"cov_{n}"] for n in names})
-            for s in ("a", "b")]
-    if name.startswith("cornell"):
-        scene = bench_run.cornell_scene(blend="cornell_point" if name == "cornell" else name)[1]
+    pair, noise = bench_run.reference_pair(REFERENCES / FILES[name].replace("_INDIRECT", f"{tag}_INDIRECT"))
+    if name in bench_run.CORNELL_BLENDS:
+        scene = bench_run.cornell_scene(blend=bench_run.CORNELL_BLENDS[name])[1]
     else:
         tagged = SCENES / f"{name}{tag}.pkl"  # the same UVs (the unwrap is deterministic): either will do
         scene = pickle.loads((tagged if tagged.exists() else SCENES / f"{name}.pkl").read_bytes())
-    return scene, pair, float(data["noise"])
-
-
-def bias(images: dict, covered: dict, pair) -> float:
-    """sum PDIC / sum reference - 1 over texels both cover, all channels."""
-    a, b = pair
-    mask = {n: a["coverage"][n] & covered[n] for n in a["images"]}
-    test = sum(float(images[n][mask[n]].sum()) for n in mask)
-    ref = sum(float((0.5 * (a["images"][n] + b["images"][n]))[mask[n]].sum()) for n in mask)
-    return test / max(ref, 1e-30) - 1.0
+    return scene, pair, noise
 
 
 def measure(name: str, scene, pair, quality: str, overrides: dict, switches: str = "", masks=None,
@@ -82,7 +70,8 @@ def measure(name: str, scene, pair, quality: str, overrides: dict, switches: str
     inside = {n: cov & masks[n][0] for n, cov in result.centre_inside.items()}
     comparable = {n: cov & masks[n][1] for n, cov in result.centre_inside.items()}
     row = dict(scene=name, quality=quality, **overrides, deviations=switches, cpu_s=cpu,
-               bias=bias(result.indirect, result.centre_inside, pair), bias_interior=bias(result.indirect, inside, pair),
+               bias=bench_run.mean_bias(result.indirect, result.centre_inside, pair),
+               bias_interior=bench_run.mean_bias(result.indirect, inside, pair),
                error=bench_run.noise_corrected_error(result.indirect, result.centre_inside, pair),
                error_comparable=bench_run.noise_corrected_error(result.indirect, comparable, pair),
                error_interior=bench_run.noise_corrected_error(result.indirect, inside, pair),

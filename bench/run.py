@@ -104,6 +104,10 @@ def timed(fn, *args, **kw):
     return out, time.perf_counter() - t
 
 
+CORNELL_BLENDS = {"cornell": "cornell_point", "cornell_area": "cornell_area"}
+"""The Cornell sample blends by the converged benches' scene names."""
+
+
 def cornell_scene(res: int = CORNELL_RES, blend: str = "cornell_point"):
     objects = bench_scenes.load_cornell(blend)
     return objects, bench_scenes.extract_lightmap_uv(objects, res)
@@ -194,6 +198,25 @@ def section_errors(quick: bool) -> dict:
     out["speedup_512"] = dict(rows=rows, target_error=TARGET_ERROR_512, cycles_spp_at_target=target_spp,
                               cycles_seconds_at_target=cycles512["seconds"] * target_spp / spp)
     return out
+
+
+def reference_pair(path) -> tuple[list, float]:
+    """(the pair as two dicts of images/coverage by target name, its relative noise) from a converged
+    reference file of bench/converged_references.py (``a_*``, ``b_*``, ``cov_*``, ``noise``)."""
+    data = np.load(path)
+    names = [k[4:] for k in data if k.startswith("cov_")]
+    pair = [dict(images={n: data[f"{s}_{n}"] for n in names}, coverage={n: data[f"cov_{n}"] for n in names})
+            for s in ("a", "b")]
+    return pair, float(data["noise"])
+
+
+def mean_bias(images: dict, covered: dict, pair) -> float:
+    """sum PDIC / sum reference - 1 over texels both cover, all channels."""
+    a, b = pair
+    mask = {n: a["coverage"][n] & covered[n] for n in a["images"]}
+    test = sum(float(images[n][mask[n]].sum()) for n in mask)
+    ref = sum(float((0.5 * (a["images"][n] + b["images"][n]))[mask[n]].sum()) for n in mask)
+    return test / max(ref, 1e-30) - 1.0
 
 
 def noise_corrected_error(images: dict, covered: dict, pair) -> float:

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pdic.bench.run import noise_corrected_error
+from pdic.bench.run import mean_bias, noise_corrected_error, reference_pair
 from pdic.core.pipeline import bake
 from pdic.core.settings import preset
 
@@ -35,23 +35,8 @@ def area_box():
     objects = [o for o in bpy.context.scene.objects if o.type == "MESH"]
     scene = extract_scene(bpy.context.evaluated_depsgraph_get(), objects, "LightMap",
                           {o.name: (RESOLUTION, RESOLUTION) for o in objects}).scene
-    data = np.load(REFERENCE)
-    names = [k[4:] for k in data if k.startswith("cov_")]
-    pair = [dict(images={n: data[f"{s}_{n}"] for n in names}, coverage={n: data[f"cov_{n}"] for n in names})
-            for s in ("a", "b")]
-    yield scene, pair
+    yield scene, reference_pair(REFERENCE)[0]
     bpy.ops.wm.read_factory_settings(use_empty=True)
-
-
-def _bias(result, pair) -> float:
-    """sum PDIC / sum reference - 1 over the texels both bake."""
-    a, b = pair
-    test = ref = 0.0
-    for n in a["images"]:
-        m = a["coverage"][n] & b["coverage"][n] & result.centre_inside[n]
-        test += float(result.indirect[n][m].sum())
-        ref += float((0.5 * (a["images"][n] + b["images"][n]))[m].sum())
-    return test / ref - 1.0
 
 
 @pytest.mark.parametrize("quality, bias_bound, error_bound", [("FINAL", 0.015, 0.04), ("PREVIEW", 0.03, 0.11)])
@@ -60,7 +45,7 @@ def test_area_lit_cornell_box_indirect_matches_converged_cycles(area_box, qualit
     result = bake(scene, preset(quality, threads=2))
     for image in result.indirect.values():
         assert np.all(np.isfinite(image))
-    bias = _bias(result, pair)
+    bias = mean_bias(result.indirect, result.centre_inside, pair)
     error = noise_corrected_error(result.indirect, result.centre_inside, pair)
     assert abs(bias) < bias_bound, bias
     assert error < error_bound, error
