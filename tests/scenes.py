@@ -42,6 +42,13 @@ def quad(corner, edge_u, edge_v) -> np.ndarray:
     return np.array([[c, c + u, c + u + v], [c, c + u + v, c + v]])
 
 
+def quad_points(corner, edge_u, edge_v, k: int) -> np.ndarray:
+    """(k^2, 3) the centres of a k x k grid over corner + s edge_u + t edge_v (s along the rows)."""
+    g = (np.arange(k) + 0.5) / k
+    u, v = (a.ravel()[:, None] for a in np.meshgrid(g, g))
+    return np.asarray(corner, float) + u * np.asarray(edge_u, float) + v * np.asarray(edge_v, float)
+
+
 def plane_target(name: str, first_triangle: int, resolution: int) -> BakeTarget:
     """A bake target for a quad made by :func:`quad` (UVs = the quad's own s, t)."""
     uv = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], np.float32)

@@ -20,7 +20,7 @@ from pdic.core.pipeline import bake
 from pdic.core.rays import RayCaster
 from pdic.core.settings import preset
 
-from scenes import box_faces, quad, quad_scene
+from scenes import box_faces, quad, quad_points, quad_scene
 
 GAP = 0.001
 CORNER, EDGE_U, EDGE_V = np.array([0.35, 0.35, 1 - GAP]), np.array([0.0, 0.3, 0.0]), np.array([0.3, 0.0, 0.0])
@@ -34,19 +34,13 @@ def _scene():
                       emission=np.array([[0.0, 0.0, 0.0], [10.0, 10.0, 10.0]]))
 
 
-def _grid(corner, edge_u, edge_v, origin) -> np.ndarray:
-    g = (np.arange(8) + 0.5) / 8
-    u, v = (a.ravel()[:, None] for a in np.meshgrid(g, g))
-    return corner + u * edge_u + v * edge_v - origin
-
-
 @pytest.fixture(scope="module")
 def referee():
     """The path tracer's mean indirect E / pi over the panel's front and over the floor (64 points each)."""
     scene = _scene()
     caster = RayCaster(scene.geometry.positions)
-    panel = _grid(CORNER, EDGE_V, EDGE_U, scene.origin_world)
-    floor = _grid(np.array([0.1, 0.1, 0.0]), np.array([0.8, 0.0, 0.0]), np.array([0.0, 0.8, 0.0]), scene.origin_world)
+    panel = quad_points(CORNER, EDGE_V, EDGE_U, 8) - scene.origin_world
+    floor = quad_points([0.1, 0.1, 0.0], [0.8, 0.0, 0.0], [0.0, 0.8, 0.0], 8) - scene.origin_world
     down, up = np.tile([0.0, 0.0, -1.0], (64, 1)), np.tile([0.0, 0.0, 1.0], (64, 1))
     on_panel = path_referee.mean_indirect(scene, caster, panel, down, 300, np.random.default_rng(1))[0]
     on_floor = path_referee.mean_indirect(scene, caster, floor, up, 300, np.random.default_rng(2))[0]

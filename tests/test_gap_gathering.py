@@ -24,7 +24,7 @@ from pdic.core.pipeline import bake
 from pdic.core.rays import RayCaster
 from pdic.core.settings import Deviations, preset
 
-from scenes import BOX_LAMP, box_faces, closed_box, quad, quad_scene
+from scenes import BOX_LAMP, box_faces, closed_box, quad, quad_points, quad_scene
 
 GAP = 0.01
 CORNER, EDGE_U, EDGE_V = np.array([0.35, 1 - GAP, 0.3]), np.array([0.0, 0.0, 0.4]), np.array([0.3, 0.0, 0.0])
@@ -39,9 +39,7 @@ def _scene():
 def referee():
     """The path tracer's mean indirect E / pi over the plate's front (16 x 16 points, 400 paths each)."""
     scene = _scene()
-    g = (np.arange(16) + 0.5) / 16
-    u, v = (a.ravel()[:, None] for a in np.meshgrid(g, g))
-    p = CORNER + u * EDGE_U + v * EDGE_V - scene.origin_world
+    p = quad_points(CORNER, EDGE_U, EDGE_V, 16) - scene.origin_world
     n = np.tile([0.0, 1.0, 0.0], (len(p), 1))
     mean, _ = path_referee.mean_indirect(scene, RayCaster(scene.geometry.positions), p, n, 400,
                                          np.random.default_rng(1))
@@ -82,10 +80,8 @@ def _ledge_scene():
 
 def test_hits_at_the_foot_of_the_wall_above_a_ledge_walk_and_the_ledge_top_matches_the_path_tracer():
     scene = _ledge_scene()
-    g = (np.arange(16) + 0.5) / 16
-    u, v = (a.ravel()[:, None] for a in np.meshgrid(g, g))
     size = LEDGE_HI - LEDGE_LO
-    p = LEDGE_LO + [0.0, 0.0, size[2]] + u * [size[0], 0.0, 0.0] + v * [0.0, size[1], 0.0] - scene.origin_world
+    p = quad_points(LEDGE_LO + [0.0, 0.0, size[2]], [size[0], 0.0, 0.0], [0.0, size[1], 0.0], 16) - scene.origin_world
     n = np.tile([0.0, 0.0, 1.0], (len(p), 1))
     mean, _ = path_referee.mean_indirect(scene, RayCaster(scene.geometry.positions), p, n, 400,
                                          np.random.default_rng(1))
