@@ -64,7 +64,9 @@ Schema (``schema_version`` 1)
     contact-faces, whose tests cast ``contact_rays``, int; such samples get no direct light either),
     and ``texel_samples_photon_evidence`` (int, back-face votes a photon overruled),
     ``validity_rays`` (int); a bake without indirect light votes only on unlit samples near lit
-    texels, to bury texels for the light map. Pass 3: ``refine_gap_hits`` (int, gathering hits
+    texels, to bury texels for the light map. Pass 2: ``photons_uncovered_after_clamp`` (int, photons
+    the final neighbour clamps left outside every zone, summed over the rounds that placed records
+    for them, deviation clamp-recovery). Pass 3: ``refine_gap_hits`` (int, gathering hits
     in a gap before their record's surface that gathered their own indirect light, deviation
     gap-gathering; ``holes_refine_gap_hits`` for the hole records). Deviation crevice-records:
     ``crevice_samples`` (int, texel samples in crevices that gathered a record of their own),

@@ -280,6 +280,7 @@ def cache_parameters(scene: Scene, rasters, settings: BakeSettings) -> CachePara
     return CacheParameters(a=settings.a, r_nearest=settings.r_nearest, R_min=max(R_min, R_MIN_FLOOR * scene.extent),
                            R_max=R_max, kernel_coverage=coverage,
                            wall_sectors=deviations.wall_sectors, neighbour_clamp=deviations.neighbour_clamp,
+                           clamp_recovery=deviations.clamp_recovery,
                            record_visibility=deviations.record_visibility, leave_one_out=deviations.leave_one_out,
                            zone_photons=ZONE_PHOTONS if deviations.zone_photon_floor and not settings.refine else 0)
 
@@ -448,7 +449,7 @@ def build_cache(run: "_Run", photons: PhotonMap, params: CacheParameters
         density = PhotonDensity(photons, run.executor.workers)
         cache, zones, lighting, build = cache_from_photons(density, params, settings.seed, progress, run.caster())
     stats.set(records=build.records, kd_queries=build.kd_queries, R_min=params.R_min, R_max=params.R_max,
-              wall_rays=build.wall_rays)
+              wall_rays=build.wall_rays, photons_uncovered_after_clamp=sum(build.uncovered_after_clamp))
     run.density = density  # reused by the hole records of this bake (its kd-tree costs seconds)
     if not settings.refine and run.sky is not None:  # deviation: sky-gathering: Preview's records gather it
         with stats.stage("cache"):

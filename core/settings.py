@@ -38,6 +38,9 @@ class Deviations:
     certain, not a sample of the density around it)."""
     neighbour_clamp: bool = True
     """R_k <= R_j + |p_k - p_j| between records ([KBPZ06])."""
+    clamp_recovery: bool = True
+    """Pass 2 (with neighbour_clamp): photons the final clamp leaves outside every zone start records
+    again, Algorithm 1 over them, so every photon stays covered as the paper's loop leaves it."""
     probe_rays: bool = True
     """Pass 3: a few real rays per record first; they bound which photons lend virtual rays."""
     virtual_thinning: bool = True

@@ -46,6 +46,7 @@ def reused():
     ("adaptive_gathering", "refine_extra_gathers", False),
     ("gathered_radius", "refine_wall_rays", False),
     ("crevice_records", "crevice_samples", False),
+    ("clamp_recovery", "photons_uncovered_after_clamp", False),
 ])
 def test_a_deviation_switched_off_casts_none_of_its_rays(default, reused, switch, counter, reuse):
     assert (reused if reuse else default)[1][counter] > 0
