@@ -228,7 +228,7 @@ def cache_from_photons(density: PhotonDensity, params: CacheParameters, seed: in
                                         params, np.random.default_rng([seed, STREAM_RECORD_ORDER]),
                                         candidate_is_photon=True, progress=progress, caster=caster)
     if params.neighbour_clamp:  # deviation: neighbour-clamp, docs/DEVIATIONS.md
-        placed = cache.R
+        placed = cache.R  # each record's R_k when its zone was gathered
         cache.R = neighbour_clamp(cache.p, placed, density.workers)
         rounds = CLAMP_RECOVERY_ROUNDS if params.clamp_recovery else 0
         for round in range(1, rounds + 1):  # deviation: clamp-recovery, docs/DEVIATIONS.md
@@ -239,9 +239,9 @@ def cache_from_photons(density: PhotonDensity, params: CacheParameters, seed: in
             more, more_zones, more_stats = _recover(density, uncovered, cache, lighting, params, caster,
                                                     np.random.default_rng([seed, STREAM_RECORD_ORDER, round]))
             stats.add(more_stats)
+            placed = np.concatenate([placed, more.R])
             cache, zones = cache.extend(more), Zones(zones.parts + more_zones.parts)
-            placed = cache.R
-            cache.R = neighbour_clamp(cache.p, placed, density.workers)
+            cache.R = neighbour_clamp(cache.p, cache.R, density.workers)
     return cache, zones, lighting, stats
 
 
