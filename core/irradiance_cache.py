@@ -236,8 +236,11 @@ def cache_from_photons(density: PhotonDensity, params: CacheParameters, seed: in
             stats.uncovered_after_clamp.append(int(uncovered.sum()))
             if not uncovered.any():
                 break
+            if progress is not None:
+                progress.begin(f"Pass 2: records for {int(uncovered.sum()):,} photons the neighbour clamp uncovered")
             more, more_zones, more_stats = _recover(density, uncovered, cache, lighting, params, caster,
-                                                    np.random.default_rng([seed, STREAM_RECORD_ORDER, round]))
+                                                    np.random.default_rng([seed, STREAM_RECORD_ORDER, round]),
+                                                    progress)
             stats.add(more_stats)
             placed = np.concatenate([placed, more.R])
             cache, zones = cache.extend(more), Zones(zones.parts + more_zones.parts)
@@ -274,7 +277,7 @@ def covered_by_zones(density: PhotonDensity, cache: IrradianceCache, zones: "Zon
 
 
 def _recover(density: PhotonDensity, uncovered: np.ndarray, cache: IrradianceCache, lighting: PhotonLighting,
-             params: CacheParameters, caster, rng: np.random.Generator
+             params: CacheParameters, caster, rng: np.random.Generator, progress=None
              ) -> tuple[IrradianceCache, "Zones", "CacheBuildStats"]:
     """Algorithm 1 over the ``uncovered`` (N,) photons, clamped against ``cache``: the new records, their
     zones and counters. Their Ward weights and w_k E_k join every photon's section 3.1 sums in ``lighting``."""
@@ -283,7 +286,7 @@ def _recover(density: PhotonDensity, uncovered: np.ndarray, cache: IrradianceCac
     E_sum = np.zeros((len(w_sum), 3))
     before = w_sum.copy()
     more, zones, stats = place_records(density, density.p, density.n, w_sum, E_sum, params, rng,
-                                       candidate_is_photon=True, existing=cache, caster=caster)
+                                       candidate_is_photon=True, progress=progress, existing=cache, caster=caster)
     lighting.w_sum[:] += (w_sum - before).astype(lighting.w_sum.dtype)
     lighting.E_indirect_sum[:] += E_sum.astype(lighting.E_indirect_sum.dtype)
     return more, zones, stats
