@@ -3,7 +3,7 @@
 Algorithm 1 stops once every photon is covered; the final min-plus clamp ([KBPZ06]) then shrinks
 zones, and the photons it uncovers had only the nearest photon's stale estimate to lend pass 3's
 gathering hits there (the cathedral: 35 % of its photons; a walkway's records gathered a wall above
-it at 0.4x a path tracer's radiance and came out 25-30 % dark). Recovery places records for them.
+it at 0.4x a path tracer's radiance and came out 25-31 % dark). Recovery places records for them.
 """
 from dataclasses import replace
 
