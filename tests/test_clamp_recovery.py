@@ -11,7 +11,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from pdic.core.density import PhotonDensity
-from pdic.core.irradiance_cache import CacheParameters, cache_from_photons
+from pdic.core.constants import STREAM_RECORD_ORDER
+from pdic.core.irradiance_cache import CacheParameters, cache_from_photons, neighbour_clamp, place_records
 from pdic.core.photons import trace_photons
 from pdic.core.rays import RayCaster
 from pdic.core.scene import PointLight
@@ -66,7 +67,12 @@ def test_every_photon_covered_after_the_clamp():
 
 
 def test_recovery_off_is_the_plain_clamp():
+    """Off, pass 2 is Algorithm 1's walk and one min-plus pass, nothing more."""
     caster, density = _room()
-    plain, _, _, stats = cache_from_photons(density, PARAMS, seed=1, caster=caster)
-    again, _, _, _ = cache_from_photons(density, replace(PARAMS, clamp_recovery=False), seed=1, caster=caster)
-    assert len(plain) == len(again) and np.array_equal(plain.R, again.R) and stats.uncovered_after_clamp == []
+    off, _, _, stats = cache_from_photons(density, replace(PARAMS, clamp_recovery=False), seed=1, caster=caster)
+    walked, _, _ = place_records(density, density.p, density.n, np.zeros(len(density.p)),
+                                 np.zeros((len(density.p), 3)), PARAMS,
+                                 np.random.default_rng([1, STREAM_RECORD_ORDER]), candidate_is_photon=True,
+                                 caster=caster)
+    assert len(off) == len(walked) and np.array_equal(off.p, walked.p)
+    assert np.array_equal(off.R, neighbour_clamp(walked.p, walked.R)) and stats.uncovered_after_clamp == []
