@@ -174,7 +174,9 @@ def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | N
         for key, value in refined.items():
             counters[key] = counters.get(key, 0) + value
         cache = cache.extend(new)
-        E[holes], w[holes], smallest[holes] = lookup(cache, holes)
+        # Every record before this round refused these points (each pair's test is its own), so Equation 3
+        # over the new records alone is the sum over all, term for term: no zone grid over the whole cache.
+        E[holes], w[holes], smallest[holes] = lookup(new, holes)
     unfilled = np.flatnonzero(w <= 0)
     if len(unfilled) and len(cache) and settings.deviations.nearest_record_fallback:
         # deviation: nearest-record-fallback, docs/DEVIATIONS.md (counted in the stats).
