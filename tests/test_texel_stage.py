@@ -110,6 +110,41 @@ def test_lookup_from_the_records_side_equals_equation_3_over_all_records():
     assert np.allclose(E_q[den > 0], num[den > 0] / den[den > 0, None])
 
 
+def test_a_hole_rounds_lookup_over_its_new_records_is_equation_3_over_the_whole_cache():
+    # fill_holes looks up a round's holes among that round's records only: every older record refused
+    # those points, each (point, record) pair's verdict being its own (walls, visibility rays, layers).
+    from pdic.core.executor import Executor
+    from pdic.core.interpolation import interpolate
+
+    caster = RayCaster(_floor_with_open_box())
+    rng = np.random.default_rng(4)
+
+    def records(k, z, log_R):
+        # a little off the plane, so the visibility rays decide some pairs
+        p = np.column_stack([rng.uniform(-2, 2, k), rng.uniform(-2, 2, k), z + rng.uniform(-0.01, 0.01, k)])
+        p[np.all(np.abs(p[:, :2]) < 0.5, axis=1) & (z == 0), 2] = 1.0  # none under the box
+        nrm = np.tile([0.0, 0, 1], (k, 1))
+        return IrradianceCache(p=p, n=nrm, E=rng.uniform(0.5, 2, (k, 3)), R=10 ** rng.uniform(*log_R, k),
+                               grad_r=rng.normal(0, 0.1, (k, 3, 3)), grad_t=rng.normal(0, 0.1, (k, 3, 3)),
+                               photons_used=np.zeros(k, np.int32), hole=np.zeros(k, bool), refined=np.ones(k, bool))
+
+    old = records(60, 0.0, (-0.7, -0.2))
+    new = records(400, 0.0, (-1.0, -0.4)).extend(records(20, 1.0, (-1.0, -0.4)))  # floor, box top
+    q = np.column_stack([rng.uniform(-2, 2, 4000), rng.uniform(-2, 2, 4000), np.zeros(4000)])
+    qn = np.tile([0.0, 0, 1], (len(q), 1))
+    with Executor(1) as executor:
+        def lookup(cache, index):
+            return interpolate(cache, 0.5, True, q[index], qn[index], executor, None, with_zone=True, caster=caster,
+                               layers=True)
+
+        _, w_old, _ = lookup(old, slice(None))
+        holes = np.flatnonzero(w_old <= 0)
+        whole, alone = lookup(old.extend(new), holes), lookup(new, holes)
+    assert 0.2 * len(q) < len(holes) < 0.9 * len(q) and (alone[1] > 0).mean() > 0.25
+    for a, b in zip(whole, alone):  # E, w_sum, smallest zone: bit for bit
+        assert np.array_equal(a, b)
+
+
 def _box_bake(deviations):
     from pdic.core.pipeline import bake
     from pdic.core.scene import PointLight
