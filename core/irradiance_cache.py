@@ -54,6 +54,7 @@ pass 2, and texel points left in holes at light-map time.
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -522,8 +523,15 @@ def neighbour_clamp(p: np.ndarray, R: np.ndarray, workers: int = 1) -> np.ndarra
     tree = cKDTree(p)
     # In chunks of records: a ball query's pairs are Python ints (~40 bytes each), and records of
     # metre-sized R pair with thousands of others (Sponza 2048^2's 74k hole records: 3.4 GB at once).
-    for s in slices(len(p), CLAMP_CHUNK):
-        out[s] = _clamped(tree, p, R, p[s], R[s], workers)
+    # Each chunk's answer is its own: the threads take chunks, not a share of each chunk's query.
+    chunks = slices(len(p), CLAMP_CHUNK)
+    if workers > 1 and len(chunks) > 1:
+        with ThreadPoolExecutor(workers) as pool:
+            parts = list(pool.map(lambda s: _clamped(tree, p, R, p[s], R[s], 1), chunks))
+    else:
+        parts = [_clamped(tree, p, R, p[s], R[s], workers) for s in chunks]
+    for s, part in zip(chunks, parts):
+        out[s] = part
     return out
 
 
