@@ -61,7 +61,7 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
             valid = np.setdiff1d(valid, crevice, assume_unique=True)
         crevice_counters = {"crevice_samples": len(crevice), "crevice_distance_rays": rays}
         progress.begin("Interpolating the cache at texels")
-        valid_points = points.take(valid)
+        valid_points = points.take(valid, executor.map)
         merged, sample_to_point = valid_points.per_texel()  # inside samples are not averaged in
         filled = fill_holes(scene, caster, density, sources, cache, merged, params, settings, executor, progress,
                             texel_size, sky)
