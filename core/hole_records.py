@@ -142,8 +142,8 @@ def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | N
     sky : the world's radiance (3,): interpolate the records' gathered sky too (E (m, 6),
         :attr:`core.interpolation.CacheLookup.sky`); Preview's hole records gather it (:func:`_hole_records`).
     Equation 3 runs once over all points and, after each round of hole records, again at the
-    points that were holes (covered points keep the records they had; the smallest zones there
-    leave hole records out).
+    points that were holes, over that round's records (every older one refused those points);
+    covered points keep the records they had (the smallest zones there leave hole records out).
     """
     seeing = _record_visibility(caster, params)
 

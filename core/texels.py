@@ -47,8 +47,8 @@ class TexelPoints:
     def take(self, index, map=map) -> "TexelPoints":
         """The points ``index`` selects (slice, mask or integer array).
 
-        map : runs the eight columns (an executor's ``map`` spreads them over threads: the copies of
-            Sponza 16/m's 3.9 M samples, mostly first-touch page faults, 1.2 -> 0.6 s on two)."""
+        map : runs the eight columns (an executor's ``map`` spreads them over threads: copying 3.9 M
+            samples, as many as Sponza 16/m has, is mostly first-touch page faults, 1.2 -> 0.6 s on two)."""
         if isinstance(index, np.ndarray) and index.dtype.kind in "iu":  # np.take: ~3x faster than fancy rows
             return TexelPoints(*map(lambda f: np.take(getattr(self, f), index, axis=0), self.__dataclass_fields__))
         return TexelPoints(*map(lambda f: getattr(self, f)[index], self.__dataclass_fields__))
