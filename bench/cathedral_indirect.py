@@ -39,7 +39,7 @@ import bpy  # noqa: E402
 
 import cycles_reference as cr  # noqa: E402
 from bench.cathedral_direct import part, prepare, texel_geometry  # noqa: E402
-from bench.competitors import BLOCK, block_means, errors  # noqa: E402
+from bench.competitors import BLOCK, BLOCK_OFF as OFF, block_differences, block_means, errors  # noqa: E402
 from bench.run import texel_masks  # noqa: E402
 from test_cathedral_direct_vs_cycles import ALBEDO  # noqa: E402
 from pdic.pdic_addon import job as job_module  # noqa: E402
@@ -47,10 +47,6 @@ from pdic.pdic_addon import writeback  # noqa: E402
 from pdic.pdic_addon.properties import to_settings  # noqa: E402
 from pdic.pdic_addon.uvmaps import LIGHTMAP_UV  # noqa: E402
 
-OFF = 0.20
-"""A block is off when its mean differs from the reference's by more than this (the issue's bound)."""
-LIT = 0.05
-"""Blocks whose reference mean is below this fraction of the map's mean are not judged (noise)."""
 
 
 def scene_digest(ob) -> str:
@@ -148,10 +144,8 @@ def blocks_off(P: np.ndarray, reference: np.ndarray, mask: np.ndarray, label: st
     """Print how many judged 8x8 blocks of ``mask``'s texels are off by more than OFF; return (each block's
     relative difference (0 where not judged), PDIC's and the reference's block luminance, texels per block)."""
     H, W = mask.shape
-    (pb, blocks), (cb, _) = block_means(P, mask), block_means(reference, mask)
-    lp, lc = pb.mean(axis=2), cb.mean(axis=2)
-    judged = blocks & (lc > LIT * lc[blocks].mean())
-    rel = np.where(judged, np.abs(lp - lc) / np.maximum(lc, 1e-30), 0.0)
+    rel, judged, lp, lc = block_differences(P, reference, mask)
+    blocks = block_means(P, mask)[1]
     off = judged & (rel > OFF)
     print(f"{label}8x8 blocks judged {int(judged.sum()):,} of {int(blocks.sum()):,}; off by > {OFF:.0%}: "
           f"{int(off.sum())} ({off.sum() / max(judged.sum(), 1):.2%}); worst {rel.max():.1%}")

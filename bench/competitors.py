@@ -122,6 +122,24 @@ def block_means(image: np.ndarray, mask: np.ndarray, factor: int = BLOCK):
     return block_average(image, mask, factor), blocks
 
 
+BLOCK_OFF = 0.20
+"""A block is off when its mean differs from the reference's by more than this (issue #11's bound)."""
+BLOCK_LIT = 0.05
+"""Blocks whose reference mean is below this fraction of the map's mean block are not judged (noise)."""
+
+
+def block_differences(test: np.ndarray, reference: np.ndarray, mask: np.ndarray, factor: int = BLOCK
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(|test - reference| / reference of each block's mean luminance (0 where not judged), the judged
+    blocks, the test's and the reference's block luminance), over ``mask``'s texels in blocks of
+    ``factor``^2: a block is judged when it holds a masked texel and its reference mean is at least
+    BLOCK_LIT of the mean block's."""
+    (tb, blocks), (rb, _) = block_means(test, mask, factor), block_means(reference, mask, factor)
+    lt, lr = tb.mean(axis=2), rb.mean(axis=2)
+    judged = blocks & (lr > BLOCK_LIT * (lr[blocks].mean() if blocks.any() else 0.0))
+    return np.where(judged, np.abs(lt - lr) / np.maximum(lr, 1e-30), 0.0), judged, lt, lr
+
+
 METRICS = ("texel", "block", "texel_interior", "block_interior")
 """Error metrics: per texel and on block means, over the centre texels and over interior texels only."""
 

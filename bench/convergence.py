@@ -9,8 +9,9 @@ core scenes in bench/results/converged/). Per bake: bias = sum PDIC / sum refere
 texels both cover, the noise-corrected relative RMS error (bench/run.py), the same error over
 *comparable* texels (``bench.run.comparable_texels``: no other face within two ray offsets of a
 sample, where Cycles' bake rays see other geometry than PDIC's; chart edges in) and over *interior*
-texels only (``bench.run.interior_texels``), photons stored and the bake's CPU seconds
-(``threads=1``). ``--figure5`` runs bench/run.py's [Chr99]-vs-Preview comparison against the same
+texels only (``bench.run.interior_texels``), the 8x8 blocks judged and those off by more than 20 %
+(``bench.run.blocks_off``, over all and over comparable texels), photons stored and the bake's CPU
+seconds (``threads=1``). ``--figure5`` runs bench/run.py's [Chr99]-vs-Preview comparison against the same
 references instead.
 """
 from __future__ import annotations
@@ -75,6 +76,8 @@ def measure(name: str, scene, pair, quality: str, overrides: dict, switches: str
                error=bench_run.noise_corrected_error(result.indirect, result.centre_inside, pair),
                error_comparable=bench_run.noise_corrected_error(result.indirect, comparable, pair),
                error_interior=bench_run.noise_corrected_error(result.indirect, inside, pair),
+               blocks_judged_off=bench_run.blocks_off(result.indirect, result.centre_inside, pair),
+               blocks_judged_off_comparable=bench_run.blocks_off(result.indirect, comparable, pair),
                photons_stored=c.get("photons_stored"), photon_bytes=c.get("photon_bytes"),
                photons_before_control=c.get("photons_before_control"), records=c.get("records"),
                hole_records=c.get("hole_records"), stage_seconds=s)

@@ -236,6 +236,22 @@ def noise_corrected_error(images: dict, covered: dict, pair) -> float:
     return float(np.sqrt(max(sq.mean() - pair_noise.mean(), 0.0)) / max(mean, 1e-30))
 
 
+def blocks_off(images: dict, covered: dict, pair) -> tuple[int, int]:
+    """(8x8 blocks judged, blocks whose mean luminance is off by more than BLOCK_OFF) of E/pi ``images``
+    against the mean of two Cycles bakes, over ``covered`` texels both bakes cover, summed over the
+    images (``bench.competitors.block_differences``; a block's 64 texels average the pair's noise down
+    8x)."""
+    from pdic.bench.competitors import BLOCK_OFF, block_differences
+
+    a, b = (_bake_dict(p) for p in pair)
+    judged = off = 0
+    for n in (n for n in a["images"] if n in images):
+        mask = a["coverage"][n] & b["coverage"][n] & covered[n]
+        rel, ok, _, _ = block_differences(images[n], 0.5 * (a["images"][n] + b["images"][n]), mask)
+        judged, off = judged + int(ok.sum()), off + int((ok & (rel > BLOCK_OFF)).sum())
+    return judged, off
+
+
 def interior_texels(scene, texel_samples: int = 2) -> dict:
     """Target name -> (H, W) bool: texels whose samples all lie on the mesh, on no face duplicated in
     place, and whose 8 neighbours are covered too.

@@ -56,6 +56,26 @@ def _ladder(errors_at_cpu):
     return [dict(method="Cycles", kind="all", cpu=t, error_texel=e) for t, e in errors_at_cpu]
 
 
+def test_blocks_off_counts_the_blocks_more_than_20_percent_off_and_judges_no_dark_one():
+    """Issue #11's block criterion (bench.run.blocks_off): one block 30 % bright, one 15 %, one dark
+    block 50 % off but under BLOCK_LIT of the mean; sizes not multiples of the block."""
+    from pdic.bench.run import blocks_off
+
+    h, w = 68, 60
+    truth = _field(h, w)
+    truth[40:48, 0:8] *= 0.01  # a dark block, not judged
+    test = truth.copy()
+    test[0:8, 0:8] *= 1.3
+    test[8:16, 8:16] *= 1.15
+    test[40:48, 0:8] *= 1.5
+    covered = np.ones((h, w), bool)
+    pair = ({"images": {"o": truth}, "coverage": {"o": covered}},) * 2
+    judged, off = blocks_off({"o": test}, {"o": covered}, pair)
+    assert off == 1 and judged == 8 * 9 - 1
+    rel, ok, _, _ = competitors.block_differences(test, truth, covered)
+    assert rel[0, 0] == pytest.approx(0.3) and rel[1, 1] == pytest.approx(0.15) and not ok[5, 0]
+
+
 def test_equal_error_time_follows_the_ladder_log_log():
     rows = _ladder([(t, 1 / np.sqrt(t)) for t in (1.0, 4.0, 16.0, 64.0)])  # Monte Carlo: error ~ t^-1/2
     at = lambda e: competitors.cycles_cpu_at_error(rows, "Cycles", "all", "texel", e)  # noqa: E731
