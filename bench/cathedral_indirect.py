@@ -48,7 +48,6 @@ from pdic.pdic_addon.properties import to_settings  # noqa: E402
 from pdic.pdic_addon.uvmaps import LIGHTMAP_UV  # noqa: E402
 
 
-
 def scene_digest(ob) -> str:
     """8 hex digits of the cathedral object as Cycles sees it (its mesh and its material's albedo):
     a cached reference is for that object only."""
