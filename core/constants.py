@@ -62,6 +62,12 @@ R_K_SAME_SIDE_COS = 0.5
 last hits of photons on another face of a corner say nothing about this record's view."""
 FALLBACK_SAME_SIDE_COS = 0.5
 """The nearest-photon fallback takes a photon within 60 degrees of the hit's normal."""
+FALLBACK_EMPTY_DISC = 4.0
+"""The nearest-photon fallback lends at most this many photons' power over the disc its photon's
+distance spans (deviation: fallback-empty-disc): with no photon on the hit's side nearer than d, an
+irradiance E would have put E pi d^2 / power photons there on average, and none lands with
+probability exp(-that), under 2 % above 4. 2 bounds more of Sponza's moulding undersides (87 blocks
+off instead of 96) but darkens seams it should not (error 8.57 % against 8.45 %)."""
 
 # --------------------------------------------------------------------------- floors
 R_K_DISTANCE_FLOOR = 1e-12

@@ -22,7 +22,7 @@ from .constants import (CORNER_HEIGHT, CORNER_REACH, GAP_COS, GAP_WALK_BOUNCES, 
                         TRANSPARENT_MAX_LAYERS)
 from .direct import direct_irradiance
 from .gather_cells import CellSums
-from .photon_fallback import NOT_ASKED, NearestPhotons, nearest_photon_seen, photon_irradiance
+from .photon_fallback import NOT_ASKED, NearestPhotons, lent_irradiance, nearest_photon_seen
 from .sampling import cosine_hemisphere, to_world
 from .zone_grid import spatial_order
 
@@ -371,7 +371,8 @@ def _indirect_facing(caster, sources, q: np.ndarray, normals: tuple, known: np.n
                 pick[ask], rays = nearest_photon_seen(caster, sources.density, q[hole[ask]], n_hit[hole[ask]],
                                                       neighbours, hole[ask])
                 hole_rays += rays
-            E_sorted[hole] = photon_irradiance(sources.lighting, pick)
+            E_sorted[hole] = lent_irradiance(sources.density, sources.lighting, pick, q[hole],
+                                             sources.deviations.fallback_empty_disc)
             picks[side, order[hole]] = pick
         E_indirect = np.empty_like(E_sorted)
         E_indirect[order] = E_sorted

@@ -76,6 +76,9 @@ class Deviations:
     or not."""
     nearest_photon_fallback: bool = True
     """Pass 3: a gathering hit no record accepts takes the nearest visible photon's irradiance."""
+    fallback_empty_disc: bool = True
+    """Pass 3 (with nearest_photon_fallback): the lent irradiance is at most FALLBACK_EMPTY_DISC photons'
+    power over the disc the lending photon's distance spans: an empty disc that wide says the hit is dark."""
     gradient_limiting: bool = True
     """Pass 3: |grad_t| <= GRADIENT_LIMIT E_k / (a R_k) (0.3 x E_k across the zone) and |grad_r| <= E_k."""
     fine_zones: bool = True
