@@ -53,3 +53,28 @@ def test_without_record_visibility_the_box_leaks_onto_the_floor():
     leaky = pipeline.bake(_scene(), preset("PREVIEW", photons=40_000, default_resolution=RES, threads=1,
                                            deviations=off))
     assert float(leaky.lightmaps["Floor"][..., :3].max()) > 1.0
+
+
+@pytest.mark.parametrize("visibility", [True, False])
+def test_the_last_resort_fallback_takes_no_record_from_a_walls_other_side(visibility):
+    """A wall face turned into a closed void (the cathedral's: E/pi 0.28 where Cycles and a path tracer
+    find 0) has lit records on the same plane, facing the other way: coplanar, so no visibility ray
+    parts them. The fallback skips them for the nearest record facing the sample's side, or gives 0."""
+    from pdic.core.hole_records import nearest_record
+    from pdic.core.irradiance_cache import IrradianceCache
+    from pdic.core.rays import RayCaster
+
+    wall = quad([-2, 0, 0], [4, 0, 0], [0, 0, 4])  # the plane y = 0
+    caster = RayCaster(wall) if visibility else None
+    p = np.array([[0.1, 0.0, 1.0], [1.5, 0.0, 1.0], [1.9, 0.0, 1.0]])  # lit side, lit side, the void's side
+    n = np.array([[0.0, 1, 0], [0.0, 1, 0], [0.0, -1, 0]])
+    m = len(p)
+    records = IrradianceCache(p=p, n=n, E=np.array([[5.0] * 3, [6.0] * 3, [0.5] * 3]), R=np.full(m, 0.1),
+                              grad_r=np.zeros((m, 3, 3)), grad_t=np.zeros((m, 3, 3)),
+                              photons_used=np.zeros(m, np.int32), hole=np.zeros(m, bool), refined=np.zeros(m, bool))
+    samples = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [1.4, 0.0, 1.0]])
+    facing = np.array([[0.0, -1, 0], [0.0, 1, 0], [0.0, -1, 0]])
+    E = nearest_record(records, samples, facing, caster)
+    np.testing.assert_allclose(E[:, 0], [0.5, 5.0, 0.5])  # not 5 and 6: those records face the lit side
+    lone = records.take(slice(0, 2))
+    np.testing.assert_allclose(nearest_record(lone, samples[:1], facing[:1], caster), 0.0)
