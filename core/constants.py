@@ -217,6 +217,10 @@ COVERED_COS = 0.97
 over it. A corner's other face, often lit (Sponza's column flutes by the lamps: -0.85 to -0.91), does not."""
 BACKFACE_FRACTION = 0.5
 """A sample is inside geometry when more than this fraction of its rays hit back faces."""
+INSIDE_RECORD_RADIUS = 0.05
+"""A hole record that record-validity finds inside geometry keeps its E = 0 over a zone of this fraction
+of R_min (2 cm at Sponza held's 4 texels/m): its gather speaks for its own point, and at R_k it lent 0 to
+lit texels 5 cm away on a capital's flank (0.56x a path tracer; docs/DEVIATIONS.md record-validity)."""
 VALIDITY_FOOTPRINT_PER_AXIS = 6
 """Jittered points per axis (36 per texel) that measure how much of a texel straddling a solid's
 boundary (a floor texel at a wall's foot) lies inside it (core/validity.py ``indirect_weights``).

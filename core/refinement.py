@@ -22,8 +22,8 @@ from functools import partial
 import numpy as np
 
 from .constants import (BACKFACE_FRACTION, CELL_DISTANCE_FLOOR, GATHER_DARK, GATHER_ERROR, GATHER_ROUNDS,
-                        PHOTON_DIRECT_SAMPLES, PROBE_RAYS, STREAM_HIT_GRID, STREAM_PHOTON_DIRECT, STREAM_REFINE,
-                        VALIDITY_RAYS, VIRTUAL_RADIUS)
+                        INSIDE_RECORD_RADIUS, PHOTON_DIRECT_SAMPLES, PROBE_RAYS, STREAM_HIT_GRID, STREAM_PHOTON_DIRECT,
+                        STREAM_REFINE, VALIDITY_RAYS, VIRTUAL_RADIUS)
 from .density import PhotonDensity
 from .direct import shade_direct
 from .executor import Executor, Progress, slices
@@ -178,6 +178,9 @@ def refine_records(scene, caster, sources: GatherSources, cache: IrradianceCache
             counters["refine_wall_rays"] = refined.wall.size
         else:
             refined.wall = open_walls(K)
+    # deviation: record-validity, docs/DEVIATIONS.md. After the neighbour clamp, which would shrink the
+    # zones around it too.
+    refined.R = np.where(gathers.inside, INSIDE_RECORD_RADIUS * params.R_min, refined.R)
     if settings.deviations.gradient_limiting:  # deviation: gradient-limiting, docs/DEVIATIONS.md
         grad_t, grad_r = limit_gradients(E, grad_t, grad_r, params.a * refined.R)
     refined.E, refined.grad_r, refined.grad_t = E[:, :3], grad_r[:, :3], grad_t[:, :3]
