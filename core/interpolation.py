@@ -59,13 +59,14 @@ class CacheLookup:
         each point's records in ascending order (Equation 3 sums them in that order)."""
         return self.grid.pairs(p)
 
-    def irradiance(self, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def irradiance(self, p: np.ndarray, n: np.ndarray, pairs: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Equation 3 at points p (m, 3) with unit normals n (m, 3).
 
         Returns (E (m, 3) float64 >= 0, or (m, 6) with :attr:`sky`, w_sum (m,) float64); w_sum == 0
-        marks a hole (no record accepted), where E is 0.
+        marks a hole (no record accepted), where E is 0. pairs : :meth:`candidates` of p, when the
+        caller looks up the same points more than once (both sides of a surface).
         """
-        E, w_sum, _ = self._equation_3(p, n, with_zone=False)
+        E, w_sum, _ = self._equation_3(p, n, with_zone=False, pairs=pairs)
         return E, w_sum
 
     def irradiance_and_zone(self, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -75,14 +76,14 @@ class CacheLookup:
         """
         return self._equation_3(p, n, with_zone=True)
 
-    def _equation_3(self, p: np.ndarray, n: np.ndarray, with_zone: bool):
+    def _equation_3(self, p: np.ndarray, n: np.ndarray, with_zone: bool, pairs: tuple | None = None):
         m = len(p)
         E_k, grad_r, grad_t = self.values
         num = np.zeros((m, E_k.shape[1]))
         den = np.zeros(m)
         smallest = np.full(m, np.inf)
         c = self.cache
-        rows, rec = self.candidates(p)
+        rows, rec = self.candidates(p) if pairs is None else pairs
         if len(rows):
             p_r, n_r = np.take(p, rows, axis=0), np.take(n, rows, axis=0)
             p_k, n_k, R_k = np.take(c.p, rec, axis=0), np.take(c.n, rec, axis=0), c.R[rec] + self.margin / self.a

@@ -36,6 +36,21 @@ class NearestPhotons:
         """(r, k) int64 the k nearest photons of each point ``rows`` indexes, nearest first."""
         return self._answers(rows, self.k)
 
+    def expect_both(self, *rows: np.ndarray):
+        """Points ``rows`` asks on every side of (each (r,) indexes): ask the tree for their k nearest
+        now, which answers their nearest too (its first column). On a surface's two sides the nearest
+        photon faces one of them, so the other side asks for the k nearest anyway (Sponza's hit grid:
+        a k-nearest query after a nearest one at most of its cells)."""
+        both = rows[0]
+        for r in rows[1:]:
+            both = np.intersect1d(both, r, assume_unique=True)
+        if len(both) and self.k > 1:
+            near = self._answers(both, self.k)
+            table = self._tables.get(1)
+            if table is None:
+                table = self._tables[1] = np.full((len(self.q), 1), -1, np.int64)
+            table[both] = near[:, :1]
+
     def _answers(self, rows: np.ndarray, k: int) -> np.ndarray:
         """(r, k) the k nearest photons of points ``rows``, querying the tree for those not asked yet."""
         table = self._tables.get(k)

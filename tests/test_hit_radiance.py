@@ -168,3 +168,32 @@ def test_a_record_just_in_front_of_a_wall_reads_the_wall_behind_it_not_a_cell_in
 
     assert plate_light(per_hit) > 0
     assert 0.8 < plate_light(grid) / plate_light(per_hit) < 1.5
+
+
+def test_one_k_nearest_query_answers_the_nearest_of_points_asked_on_both_sides():
+    """The hit grid asks both sides of a centroid; where both fall to the fallback, one k-nearest query
+    answers its nearest too, the same photons a fresh query finds."""
+    from scipy.spatial import cKDTree
+
+    from pdic.core.density import PhotonDensity
+    from pdic.core.photon_fallback import NearestPhotons
+    from pdic.core.photons import PhotonMap
+
+    rng = np.random.default_rng(4)
+    count = 3000
+    n = rng.normal(size=(count, 3)).astype(np.float32)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    photons = PhotonMap(p=rng.uniform(-1, 1, (count, 3)).astype(np.float32), n=n, wi=n,
+                        power=np.ones((count, 3), np.float32), d_prev=np.ones(count, np.float32),
+                        prev=np.full(count, -1, np.int32), bounce=np.ones(count, np.uint8),
+                        triangle=np.zeros(count, np.int32), albedo=np.full((count, 3), 0.5, np.float32),
+                        emitted=count)
+    density = PhotonDensity(photons)
+    q = np.random.default_rng(5).uniform(-1, 1, (400, 3))
+    front, back = np.arange(0, 300), np.arange(100, 400)
+    neighbours = NearestPhotons(density, q)
+    neighbours.expect_both(front, back)
+    _, nearest = cKDTree(density.p).query(q, k=1)
+    _, k_nearest = cKDTree(density.p).query(q, k=neighbours.k)
+    assert np.array_equal(neighbours.nearest(np.arange(400)), nearest)
+    assert np.array_equal(neighbours.k_nearest(np.arange(100, 300)), k_nearest[100:300])
