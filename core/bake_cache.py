@@ -316,6 +316,9 @@ class NoBakeCache:
     def get(self, kind: str, key: str):
         return None
 
+    def put(self, kind: str, key: str, value) -> None:
+        pass
+
     def memoise(self, kind: str, key: str, compute):
         return compute()
 

@@ -125,6 +125,8 @@ class DaskExecutor(Executor):
     timeout : seconds to wait for the scheduler before giving up.
     """
 
+    in_process = False  # the cluster runs the chunks: a stage beside them would run on the coordinator alone
+
     def __init__(self, scheduler: str, threads: int = 1, timeout: float = 20.0):
         super().__init__(threads)
         self.scheduler = scheduler

@@ -29,6 +29,10 @@ class Executor:
     workers : how many run at once (1 = on the calling thread).
     """
 
+    in_process = True
+    """Chunks run on this process's cores, so a stage run beside the workers (:class:`Beside`) fills the
+    ones they leave idle."""
+
     def __init__(self, workers: int = 1):
         self.workers = max(1, int(workers))
         self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="pdic") if self.workers > 1 else None
@@ -128,6 +132,53 @@ class Progress:
     def _emit(self, eta):
         if self.callback is not None:
             self.callback(self.stage, self.fraction, eta)
+
+
+class Beside:
+    """``fn()`` on a thread of its own while the calling thread goes on: a stage that needs neither the
+    caller's results nor its workers, run where they leave a core idle (the serial stretches of pass 2).
+
+    ``progress`` is the side's own (silent) :class:`Progress`; :meth:`wait` passes ``watch``'s cancel on
+    to it while waiting. :meth:`start` starts it (:meth:`wait` does if nothing did); :meth:`stop` asks
+    it to stop at its next chunk and waits for it.
+    """
+
+    def __init__(self, fn: Callable[[], None], progress: Progress, watch: Progress):
+        self.progress, self.watch = progress, watch
+        self._error: list[BaseException] = []
+
+        def run():
+            try:
+                fn()
+            except BaseException as e:  # re-raised on the calling thread by wait()
+                self._error.append(e)
+
+        self._thread = threading.Thread(target=run, name="pdic-beside", daemon=True)
+
+    def start(self) -> None:
+        if self._thread.ident is None:
+            self._thread.start()
+
+    @property
+    def running(self) -> bool:
+        """Not finished yet (or not started): waiting for it would block."""
+        return self._thread.ident is None or self._thread.is_alive()
+
+    def wait(self) -> None:
+        """Join the side; raises its error, or Cancelled once the watched progress is cancelled."""
+        self.start()
+        while self._thread.is_alive():
+            self._thread.join(0.05)
+            if self.watch.cancel_requested.is_set():
+                self.stop()
+        if self._error:
+            raise self._error[0]
+        self.watch.check()
+
+    def stop(self) -> None:
+        self.progress.cancel()
+        if self._thread.ident is not None:
+            self._thread.join()
 
 
 def slices(n: int, size: int) -> list[slice]:

@@ -34,14 +34,14 @@ from .density import PhotonDensity
 from .density_control import controlled_pass
 from .direct import shade_direct
 from .direct_footprint import footprint_direct
-from .executor import Executor, Progress, default_workers
+from .executor import Beside, Executor, Progress, default_workers, serial_executor
 from .hit_radiance import HitGrid
 from .hole_records import indirect_at_texels, interpolate_filling_holes  # noqa: F401  (re-exported)
 from .interpolation import CacheLookup
 from .irradiance_cache import CacheParameters, IrradianceCache, cache_from_photons
 from .lightmaps import write_lightmaps
 from .photons import PhotonLighting, PhotonMap, trace_pass
-from .rays import RayCaster
+from .rays import EmbreeClock, RayCaster
 from .refinement import gather_sources, light_photons, refine_records
 from .scene import Scene, SceneError, World
 from .settings import BakeSettings
@@ -117,12 +117,21 @@ def _bake(run: "_Run") -> BakeResult:
     _check_scene(run.scene)
     targets = rasterise_targets(run)
     run.stats.set(sky_gathered=int(run.sky is not None))  # deviation: sky-gathering
-    shade_direct_at_targets(run, targets)
     cache = photons = lighting = None
     if run.settings.indirect and run.settings.photons > 0:
         params = cache_parameters(run.scene, [t.raster for t in targets], run.settings)
-        cache, photons, lighting = indirect_at_targets(run, targets, params)
+        # The direct light needs nothing of passes 2-3: it runs beside them, on the core pass 2's
+        # serial stretches leave idle (Sponza 16 texels/m: 11 of pass 2's 30 core-seconds).
+        beside = run.executor.in_process and run.executor.workers > 1
+        direct = shade_direct_at_targets(run, targets, beside=beside)
+        try:
+            cache, photons, lighting = indirect_at_targets(run, targets, params, direct)
+        except BaseException:
+            direct.stop()
+            raise
+        direct()
     else:
+        shade_direct_at_targets(run, targets)
         validity_without_indirect(run, targets)
     maps = write_lightmaps(run.scene, targets, run.settings.padding, run.progress, run.stats,
                            run.settings.deviations.buried_texels)
@@ -176,6 +185,59 @@ class _Run:
         if self._contact is None:
             self._contact = ContactFaces(self.scene.geometry.positions, self.caster())
         return self._contact
+
+
+class _Beside:
+    """A stage of ``run`` on a thread of its own (:class:`~core.executor.Beside`): ``stage(side)`` on a copy
+    of the run that computes serially, with its own statistics, ray count and Embree clock, folded into
+    ``run``'s once waited for. Its random streams are its chunks' own, so it computes what it would in line."""
+
+    def __init__(self, run: "_Run", name: str, stage):
+        self.run, self.name = run, name
+        self.view = run.caster().serial()
+        self.view.clock = EmbreeClock()  # its time inside Embree is its own stage's, not the one it runs beside
+        self.stats = BakeStats(workers=1, clock=self.view.clock)
+        side = replace(run, progress=Progress(), executor=serial_executor(), stats=self.stats, _caster=self.view,
+                       _contact=run.contact())
+        self._beside = Beside(lambda: stage(side), side.progress, run.progress)
+
+    def then(self, finish) -> "_Waiter":
+        """A callable that waits for the stage, folds its statistics in and runs ``finish()``, once."""
+        return _Waiter(self, finish)
+
+    def fold(self) -> None:
+        self.run.stats.fold(self.stats)
+        self.run.caster().rays_cast += self.view.rays_cast
+
+
+class _Waiter:
+    """Starts a :class:`_Beside` stage (:meth:`start`) and waits for it once (later calls return at once);
+    :meth:`stop` ends it early. Without a stage (one that ran in line) there is nothing to wait for."""
+
+    def __init__(self, side: _Beside | None = None, finish=None):
+        self.side, self.finish, self.waited = side, finish, side is None
+
+    def start(self) -> None:
+        if not self.waited:
+            self.side._beside.start()
+
+    def __call__(self) -> None:
+        if self.waited:
+            return
+        self.waited = True
+        beside = self.side._beside
+        if beside.running:  # the bake waits for it: that time is the bake's own (seconds.direct_wait)
+            with self.side.run.stats.stage(f"{self.side.name}_wait"):
+                beside.wait()
+        beside.wait()  # raises the stage's error, or Cancelled
+        self.side.fold()
+        self.finish()
+
+    def stop(self) -> None:
+        """Stop the stage at its next chunk (the bake failed or was cancelled beside it)."""
+        if not self.waited:
+            self.waited = True
+            self.side._beside.stop()
 
 
 @dataclass
@@ -286,38 +348,62 @@ def cache_parameters(scene: Scene, rasters, settings: BakeSettings) -> CachePara
 
 
 # --------------------------------------------------------------------------- direct light
-def shade_direct_at_targets(run: "_Run", targets: list[TargetTexels]) -> None:
-    """E_direct (n, 3) at every target's texel samples (zeros when direct light is off)."""
+def shade_direct_at_targets(run: "_Run", targets: list[TargetTexels], beside: bool = False):
+    """E_direct (n, 3) at every target's texel samples (zeros when direct light is off).
+
+    beside : shade the targets whose direct light is not stored on a thread of their own (:class:`_Beside`)
+        once the returned :class:`_Waiter` is started; calling it waits for them and stores them. Without
+        it (or with nothing to shade) they are shaded in line and the waiter waits for nothing.
+    """
     settings, stats, store = run.settings, run.stats, run.store
     if not settings.direct:
-        return
-    shaded = []
+        return _Waiter()
     # deviation: sky-gathering: the records bring the world's light (indirect_at_targets adds it)
     lit = run.scene if run.sky is None else replace(run.scene, world=World())
 
-    def shade(index: int, t: TargetTexels):
-        if not shaded:
-            run.progress.begin("Direct light")
-        shaded.append(t)
-        with stats.stage("direct"):
+    def shade(side: "_Run", index: int, t: TargetTexels):
+        with side.stats.stage("direct"):
             p = t.points
-            direct, counters = shade_direct(lit, run.caster(), p.p, p.n_shading, p.n_geometric,
+            direct, counters = shade_direct(lit, side.caster(), p.p, p.n_shading, p.n_geometric,
                                             settings.direct_samples, settings.seed, (STREAM_DIRECT, t.stream),
-                                            run.executor, run.progress, whole=True)
-            contact = run.contact()
+                                            side.executor, side.progress, whole=True)
+            contact = side.contact()
             if contact is not None:  # deviation: contact-faces, docs/DEVIATIONS.md
                 direct = replace(direct, E=np.where(contact.samples(p.p, p.triangle)[:, None], 0.0, direct.E))
             E = direct.E
             if settings.deviations.direct_footprint:  # deviation: direct-footprint, docs/DEVIATIONS.md
-                E, more = footprint_direct(lit, run.caster(), index, p, t.raster, t.texel_size, direct,
-                                           settings, t.stream, run.executor, run.progress, contact)
+                E, more = footprint_direct(lit, side.caster(), index, p, t.raster, t.texel_size, direct,
+                                           settings, t.stream, side.executor, side.progress, contact)
                 counters.update(more)
-        stats.add(**counters)
+        side.stats.add(**counters)
         return E
 
-    for index, t in enumerate(targets):  # targets are rasterise_targets' list: scene.targets' order
-        t.E_direct = store.memoise("direct", _direct_key(run, t), lambda: shade(index, t))
-    stats.set(targets_shaded_direct=len(shaded))
+    todo = []  # (index, target, key) of the targets not stored; targets are scene.targets' order
+    for index, t in enumerate(targets):
+        key = _direct_key(run, t)
+        stored = store.get("direct", key)
+        if stored is None:
+            todo.append((index, t, key))
+        else:
+            t.E_direct = stored
+
+    def compute(side: "_Run"):
+        if todo:
+            side.progress.begin("Direct light")
+        for index, t, key in todo:
+            t.E_direct = shade(side, index, t)
+
+    def finish():
+        for _, t, key in todo:
+            store.put("direct", key, t.E_direct)
+        stats.set(targets_shaded_direct=len(todo))
+
+    if not (beside and todo):
+        compute(run)
+        finish()
+        return _Waiter()
+    side = _Beside(run, "direct", compute)
+    return side.then(finish)
 
 
 def _direct_key(run: "_Run", t: TargetTexels) -> str:
@@ -378,11 +464,15 @@ def _voted(E_direct: np.ndarray, texel: np.ndarray, width: int, height: int, rea
 
 
 # --------------------------------------------------------------------------- indirect light
-def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheParameters
+def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheParameters,
+                        direct: "_Waiter | None" = None
                         ) -> tuple[IrradianceCache, PhotonMap | None, PhotonLighting | None]:
     """Passes 1-3 (only if some target still needs them), then Equation 3 with hole records at
     every target's texels. Returns the full cache (hole records included), the photon map and
-    the photons' lighting."""
+    the photons' lighting. direct : the direct light to run beside passes 2-3 (:func:`shade_direct_at_targets`):
+    started once the photons are traced (their tracing keeps every core busy), waited for before the
+    texels' stage, which shares its contact faces."""
+    direct = direct or _Waiter()
     settings, store = run.settings, run.store
     photon_bounces = settings.max_bounces - 1 if settings.refine else settings.max_bounces
     photon_key = store.key("photons", run.transport(), settings.photons, photon_bounces, settings.seed,
@@ -396,12 +486,14 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
                                 lambda: controlled_pass(trace_pass(run.scene, run.caster(), settings, photon_bounces,
                                                                    run.executor, run.progress, run.stats),
                                                         params, settings, run.progress, run.stats))
+        direct.start()
         return build_cache(run, photons, params)
 
     def texels(index: int, t: TargetTexels):
         if not passes:
             passes.append(store.memoise("cache", cache_key, passes_1_to_3))
             passes.append(_hole_sources(run, passes[0], params))
+        direct()
         (cache, _, _), (density, sources) = passes
         shaded.append(t)
         return indirect_at_texels(run.scene, run.caster(), density, sources, cache, index, t.points, t.texel_size,
@@ -413,6 +505,7 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
         key = store.key("indirect", cache_key, t.key, settings.gradients, settings.direct_footprint_side)
         E, t.holes, t.indirect_weight = store.memoise("indirect", key, lambda: texels(index, t))
         t.E_indirect = E[:, :3]
+        direct()  # a target whose indirect light was stored reaches here without the texels' stage
         if run.sky is not None:  # deviation: sky-gathering: the world's light belongs to the direct-light image
             t.E_direct = t.E_direct + (E[:, 3:] if E.shape[1] > 3 else _sky_without_records(run, t))
     run.stats.set(targets_shaded_indirect=len(shaded))

@@ -22,6 +22,8 @@ class BakeStats:
     """The ray caster's :class:`~core.rays.EmbreeClock` once a BVH exists (None before)."""
     embree_seconds: dict = field(default_factory=dict)
     """Seconds inside Embree per stage, summed over threads (read from :attr:`clock`)."""
+    stage_workers: dict = field(default_factory=dict)
+    """Threads of the stages that ran on fewer than ``workers`` (a stage beside others: :meth:`fold`)."""
 
     @contextmanager
     def stage(self, name: str):
@@ -38,6 +40,16 @@ class BakeStats:
     def _embree_reading(self) -> float:
         return self.clock.seconds if self.clock is not None else 0.0
 
+    def fold(self, other: "BakeStats") -> None:
+        """Take in the statistics of a stage that ran beside this run's (its own thread, clock and
+        counters): its wall seconds overlap other stages', so the stages' sum may exceed the bake's."""
+        for name, seconds in other.seconds.items():
+            self.seconds[name] = self.seconds.get(name, 0.0) + seconds
+            self.stage_workers[name] = other.workers
+        for name, seconds in other.embree_seconds.items():
+            self.embree_seconds[name] = self.embree_seconds.get(name, 0.0) + seconds
+        self.add(**other.counters)
+
     def add(self, **counters):
         for key, value in counters.items():
             self.counters[key] = self.counters.get(key, 0) + value
@@ -49,7 +61,8 @@ class BakeStats:
         """``embree_seconds_<stage>`` and ``embree_share_<stage>`` (in [0, 1]) for every stage that cast rays.
 
         The share is Embree's part of the stage's thread time: summed seconds inside Embree over
-        ``workers`` x wall seconds (threads idle or running other stages count as not-Embree).
+        ``workers`` x wall seconds (threads idle or running other stages count as not-Embree; a stage
+        that ran beside others, on one thread: that thread's wall seconds).
         """
         out = {}
         for name, spent in self.embree_seconds.items():
@@ -57,14 +70,19 @@ class BakeStats:
             if spent <= 0.0 or wall <= 0.0:
                 continue
             out[f"embree_seconds_{name}"] = float(f"{spent:.6g}")  # a tiny stage stays above 0
-            out[f"embree_share_{name}"] = min(spent / (wall * max(self.workers, 1)), 1.0)
+            threads = self.stage_workers.get(name, self.workers)
+            out[f"embree_share_{name}"] = min(spent / (wall * max(threads, 1)), 1.0)
         return out
 
     def as_dict(self) -> dict:
-        total = sum(self.seconds.values())
+        # A stage that ran beside others overlaps their time; what the bake waited for it is its own stage.
+        total = sum(v for k, v in self.seconds.items() if k not in self.stage_workers)
         counters = {**self.counters, **self.embree_counters()}
-        return {
+        out = {
             "seconds": {k: round(v, 4) for k, v in self.seconds.items()},
             "seconds_total": round(total, 4),
             "counters": {k: (int(v) if float(v).is_integer() else float(v)) for k, v in counters.items()},
         }
+        if self.stage_workers:
+            out["seconds_beside"] = sorted(self.stage_workers)
+        return out

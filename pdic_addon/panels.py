@@ -37,6 +37,7 @@ STAGE_LABELS = (
     ("rasterise", "Rasterise texels"),
     ("validity", "Texel validity"),
     ("direct", "Direct light"),
+    ("direct_wait", "Waiting for direct light"),
     ("photons", "Pass 1: photons"),
     ("cache", "Pass 2: cache"),
     ("photon_direct", "Pass 3: photon direct"),
@@ -75,21 +76,23 @@ def _count(value) -> str:
 def stats_rows(stats: dict) -> list[tuple[str, str]]:
     """(label, value) rows for the Last Bake section from a bake's stats dict (``scene.pdic.last_stats``).
 
-    Per-pass wall seconds in bake order, the total, then photons, records,
+    Per-pass wall seconds in bake order (a stage that ran beside others marked, and left out of
+    the total, whose stages it overlapped), the total, then photons, records,
     rays cast and the rays saved by reusing photon paths (pass 3). Missing
     keys are left out (a Preview bake has no refinement).
     """
     rows: list[tuple[str, str]] = []
     seconds = stats.get("seconds", {})
+    beside = stats.get("seconds_beside", [])  # ran beside other stages (the direct light beside passes 2-3)
     known = {k for k, _ in STAGE_LABELS}
     for key, label in STAGE_LABELS:
         if key in seconds:
-            rows.append((label, f"{seconds[key]:.2f} s"))
+            rows.append((label + (" (beside)" if key in beside else ""), f"{seconds[key]:.2f} s"))
     for key in seconds:  # stages a newer core adds
         if key not in known and key not in OVERLAPPING_STAGES:
             rows.append((key.replace("_", " ").capitalize(), f"{seconds[key]:.2f} s"))
-    if seconds:  # addon_compute spans the core stages; addon_finish spans writing images
-        total = sum(v for k, v in seconds.items() if k not in OVERLAPPING_STAGES)
+    if seconds:  # addon_compute spans the core stages; addon_finish spans writing images; beside: overlapped
+        total = sum(v for k, v in seconds.items() if k not in OVERLAPPING_STAGES and k not in beside)
         rows.append(("Total", f"{total:.2f} s"))
     c = stats.get("counters", {})
     if "photons_emitted" in c:

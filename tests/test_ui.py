@@ -386,6 +386,14 @@ def test_stats_rows_sum_stages_without_double_counting_and_format_counters():
     assert "Addon compute" not in rows
 
 
+def test_stats_rows_mark_a_stage_that_ran_beside_others_and_leave_it_out_of_the_total():
+    stats = {"seconds": {"photons": 1.0, "cache": 2.0, "refine": 3.0, "direct": 2.5, "direct_wait": 0.5},
+             "seconds_beside": ["direct"]}
+    rows = dict(panels.stats_rows(stats))
+    assert rows["Direct light (beside)"] == "2.50 s" and rows["Waiting for direct light"] == "0.50 s"
+    assert rows["Total"] == "6.50 s"
+
+
 def test_actions_show_progress_and_cancel_while_baking(addon):
     idle, busy = RecordingLayout(), RecordingLayout()
     panels.draw_actions(idle, None)

@@ -1,0 +1,78 @@
+"""The direct light runs beside passes 1-3, on a thread of its own (issue 12: pass 2's serial stretches
+leave a core idle). It must compute what it computes in line, count what it casts, stop with the bake
+and pass its errors on."""
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from pdic.core.executor import Beside, Cancelled, Progress
+from pdic.core.pipeline import bake
+from pdic.core.settings import preset
+
+from scenes import lamp_box
+
+FINAL = dict(photons=4000, max_bounces=3, hemisphere_theta=6, hemisphere_phi=12)
+
+
+def _beside_threads() -> list:
+    return [t for t in threading.enumerate() if t.name == "pdic-beside"]
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_the_direct_light_beside_passes_1_to_3_is_the_direct_light_in_line(threads):
+    scene = lamp_box(16)
+    beside = bake(scene, preset("FINAL", threads=threads, **FINAL))
+    in_line = bake(scene, preset("FINAL", threads=threads, indirect=False, **FINAL))
+    for name in in_line.direct:
+        assert in_line.direct[name].max() > 0
+        assert np.array_equal(beside.direct[name], in_line.direct[name]), name
+    a, b = beside.stats["counters"], in_line.stats["counters"]
+    assert a["shadow_rays"] == b["shadow_rays"] > 0
+    assert a["targets_shaded_direct"] == b["targets_shaded_direct"] == 2
+    # its rays join the bake's count: the direct light's and pass 1-3's, each cast once
+    assert a["rays_cast"] > a["shadow_rays"] + a["refine_rays_cast"]
+    seconds = beside.stats["seconds"]
+    assert "direct" in seconds
+    if threads > 1:  # its time overlaps passes 2-3: listed, not summed (what the bake waited for it is)
+        assert beside.stats["seconds_beside"] == ["direct"]
+        assert beside.stats["seconds_total"] == pytest.approx(
+            sum(v for k, v in seconds.items() if k != "direct"), abs=1e-3)
+        assert 0.0 < beside.stats["counters"]["embree_share_direct"] <= 1.0
+    else:  # one thread: in line, as before
+        assert "seconds_beside" not in beside.stats
+    assert not _beside_threads()
+
+
+def test_a_cancel_during_pass_2_stops_the_direct_light_beside_it():
+    progress = Progress(lambda stage, fraction, eta: progress.cancel() if stage.startswith("Pass 2") else None)
+    with pytest.raises(Cancelled):
+        bake(lamp_box(48), preset("FINAL", threads=2, **FINAL), progress)
+    assert not _beside_threads()
+
+
+def test_an_error_beside_reaches_the_caller_when_it_waits():
+    def fail():
+        raise ValueError("bad light")
+
+    beside = Beside(fail, Progress(), Progress())
+    with pytest.raises(ValueError, match="bad light"):
+        beside.wait()
+
+
+def test_a_cancel_of_the_watched_progress_stops_the_side_at_its_next_check():
+    side, watch = Progress(), Progress()
+    checks = []
+
+    def work():
+        while True:
+            checks.append(1)
+            side.check()
+            time.sleep(0.001)
+
+    beside = Beside(work, side, watch)
+    watch.cancel()
+    with pytest.raises(Cancelled):
+        beside.wait()
+    assert checks and not _beside_threads()
