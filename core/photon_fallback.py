@@ -37,10 +37,10 @@ class NearestPhotons:
         return self._answers(rows, self.k)
 
     def expect_both(self, *rows: np.ndarray):
-        """Points ``rows`` asks on every side of (each (r,) indexes): ask the tree for their k nearest
-        now, which answers their nearest too (its first column). On a surface's two sides the nearest
-        photon faces one of them, so the other side asks for the k nearest anyway (Sponza's hit grid:
-        a k-nearest query after a nearest one at most of its cells)."""
+        """The points every side will ask about (``rows``: one (r,) index array per side) get their k
+        nearest now, which answers their nearest too (the first column). On a surface's two sides the
+        nearest photon faces one of them, so the other side asks for the k nearest anyway: one query
+        instead of a nearest one and then a k-nearest one (Sponza's hit grid, at most of its cells)."""
         both = rows[0]
         for r in rows[1:]:
             both = np.intersect1d(both, r, assume_unique=True)

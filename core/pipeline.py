@@ -189,55 +189,56 @@ class _Run:
 
 class _Beside:
     """A stage of ``run`` on a thread of its own (:class:`~core.executor.Beside`): ``stage(side)`` on a copy
-    of the run that computes serially, with its own statistics, ray count and Embree clock, folded into
-    ``run``'s once waited for. Its random streams are its chunks' own, so it computes what it would in line."""
+    of the run that computes serially, with its own statistics, ray count and Embree clock. Its random
+    streams are its chunks' own, so it computes what it would in line.
 
-    def __init__(self, run: "_Run", name: str, stage):
-        self.run, self.name = run, name
+    :meth:`start` starts it; calling it waits for it once (raising its error, or Cancelled), folds its
+    statistics into ``run``'s and runs ``finish()``; :meth:`stop` ends it early.
+    """
+
+    def __init__(self, run: "_Run", name: str, stage, finish):
+        self.run, self.name, self.finish = run, name, finish
         self.view = run.caster().serial()
         self.view.clock = EmbreeClock()  # its time inside Embree is its own stage's, not the one it runs beside
         self.stats = BakeStats(workers=1, clock=self.view.clock)
         side = replace(run, progress=Progress(), executor=serial_executor(), stats=self.stats, _caster=self.view,
                        _contact=run.contact())
-        self._beside = Beside(lambda: stage(side), side.progress, run.progress)
-
-    def then(self, finish) -> "_Waiter":
-        """A callable that waits for the stage, folds its statistics in and runs ``finish()``, once."""
-        return _Waiter(self, finish)
-
-    def fold(self) -> None:
-        self.run.stats.fold(self.stats)
-        self.run.caster().rays_cast += self.view.rays_cast
-
-
-class _Waiter:
-    """Starts a :class:`_Beside` stage (:meth:`start`) and waits for it once (later calls return at once);
-    :meth:`stop` ends it early. Without a stage (one that ran in line) there is nothing to wait for."""
-
-    def __init__(self, side: _Beside | None = None, finish=None):
-        self.side, self.finish, self.waited = side, finish, side is None
+        self._thread = Beside(lambda: stage(side), side.progress, run.progress)
+        self._waited = False
 
     def start(self) -> None:
-        if not self.waited:
-            self.side._beside.start()
+        self._thread.start()
 
     def __call__(self) -> None:
-        if self.waited:
+        if self._waited:
             return
-        self.waited = True
-        beside = self.side._beside
-        if beside.running:  # the bake waits for it: that time is the bake's own (seconds.direct_wait)
-            with self.side.run.stats.stage(f"{self.side.name}_wait"):
-                beside.wait()
-        beside.wait()  # raises the stage's error, or Cancelled
-        self.side.fold()
+        self._waited = True
+        if self._thread.running:  # the bake waits for it: that time is the bake's own (seconds.direct_wait)
+            with self.run.stats.stage(f"{self.name}_wait"):
+                self._thread.wait()
+        self._thread.wait()  # raises the stage's error, or Cancelled
+        self.run.stats.fold(self.stats)
+        self.run.caster().rays_cast += self.view.rays_cast
         self.finish()
 
     def stop(self) -> None:
         """Stop the stage at its next chunk (the bake failed or was cancelled beside it)."""
-        if not self.waited:
-            self.waited = True
-            self.side._beside.stop()
+        if not self._waited:
+            self._waited = True
+            self._thread.stop()
+
+
+class _InLine:
+    """What a stage that ran in line hands on in place of a :class:`_Beside`: nothing to start, wait for or stop."""
+
+    def start(self) -> None:
+        pass
+
+    def __call__(self) -> None:
+        pass
+
+    def stop(self) -> None:
+        pass
 
 
 @dataclass
@@ -348,16 +349,17 @@ def cache_parameters(scene: Scene, rasters, settings: BakeSettings) -> CachePara
 
 
 # --------------------------------------------------------------------------- direct light
-def shade_direct_at_targets(run: "_Run", targets: list[TargetTexels], beside: bool = False):
+def shade_direct_at_targets(run: "_Run", targets: list[TargetTexels], beside: bool = False
+                            ) -> "_Beside | _InLine":
     """E_direct (n, 3) at every target's texel samples (zeros when direct light is off).
 
-    beside : shade the targets whose direct light is not stored on a thread of their own (:class:`_Beside`)
-        once the returned :class:`_Waiter` is started; calling it waits for them and stores them. Without
-        it (or with nothing to shade) they are shaded in line and the waiter waits for nothing.
+    beside : return a :class:`_Beside` that shades the targets whose direct light is not stored, on a
+        thread of its own once started; calling it waits for them and stores them. Without it (or with
+        nothing to shade) they are shaded in line and an :class:`_InLine` is returned.
     """
     settings, stats, store = run.settings, run.stats, run.store
     if not settings.direct:
-        return _Waiter()
+        return _InLine()
     # deviation: sky-gathering: the records bring the world's light (indirect_at_targets adds it)
     lit = run.scene if run.sky is None else replace(run.scene, world=World())
 
@@ -401,9 +403,8 @@ def shade_direct_at_targets(run: "_Run", targets: list[TargetTexels], beside: bo
     if not (beside and todo):
         compute(run)
         finish()
-        return _Waiter()
-    side = _Beside(run, "direct", compute)
-    return side.then(finish)
+        return _InLine()
+    return _Beside(run, "direct", compute, finish)
 
 
 def _direct_key(run: "_Run", t: TargetTexels) -> str:
@@ -465,14 +466,14 @@ def _voted(E_direct: np.ndarray, texel: np.ndarray, width: int, height: int, rea
 
 # --------------------------------------------------------------------------- indirect light
 def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheParameters,
-                        direct: "_Waiter | None" = None
+                        direct: "_Beside | _InLine | None" = None
                         ) -> tuple[IrradianceCache, PhotonMap | None, PhotonLighting | None]:
     """Passes 1-3 (only if some target still needs them), then Equation 3 with hole records at
     every target's texels. Returns the full cache (hole records included), the photon map and
     the photons' lighting. direct : the direct light to run beside passes 2-3 (:func:`shade_direct_at_targets`):
     started once the photons are traced (their tracing keeps every core busy), waited for before the
     texels' stage, which shares its contact faces."""
-    direct = direct or _Waiter()
+    direct = direct or _InLine()
     settings, store = run.settings, run.store
     photon_bounces = settings.max_bounces - 1 if settings.refine else settings.max_bounces
     photon_key = store.key("photons", run.transport(), settings.photons, photon_bounces, settings.seed,

@@ -22,8 +22,8 @@ class BakeStats:
     """The ray caster's :class:`~core.rays.EmbreeClock` once a BVH exists (None before)."""
     embree_seconds: dict = field(default_factory=dict)
     """Seconds inside Embree per stage, summed over threads (read from :attr:`clock`)."""
-    stage_workers: dict = field(default_factory=dict)
-    """Threads of the stages that ran on fewer than ``workers`` (a stage beside others: :meth:`fold`)."""
+    beside: dict = field(default_factory=dict)
+    """Stages that ran on a thread of their own beside the others (:meth:`fold`) -> the threads they ran on."""
 
     @contextmanager
     def stage(self, name: str):
@@ -42,10 +42,10 @@ class BakeStats:
 
     def fold(self, other: "BakeStats") -> None:
         """Take in the statistics of a stage that ran beside this run's (its own thread, clock and
-        counters): its wall seconds overlap other stages', so the stages' sum may exceed the bake's."""
+        counters): its wall seconds overlap other stages' (listed, left out of ``seconds_total``)."""
         for name, seconds in other.seconds.items():
             self.seconds[name] = self.seconds.get(name, 0.0) + seconds
-            self.stage_workers[name] = other.workers
+            self.beside[name] = other.workers
         for name, seconds in other.embree_seconds.items():
             self.embree_seconds[name] = self.embree_seconds.get(name, 0.0) + seconds
         self.add(**other.counters)
@@ -70,19 +70,19 @@ class BakeStats:
             if spent <= 0.0 or wall <= 0.0:
                 continue
             out[f"embree_seconds_{name}"] = float(f"{spent:.6g}")  # a tiny stage stays above 0
-            threads = self.stage_workers.get(name, self.workers)
+            threads = self.beside.get(name, self.workers)
             out[f"embree_share_{name}"] = min(spent / (wall * max(threads, 1)), 1.0)
         return out
 
     def as_dict(self) -> dict:
         # A stage that ran beside others overlaps their time; what the bake waited for it is its own stage.
-        total = sum(v for k, v in self.seconds.items() if k not in self.stage_workers)
+        total = sum(v for k, v in self.seconds.items() if k not in self.beside)
         counters = {**self.counters, **self.embree_counters()}
         out = {
             "seconds": {k: round(v, 4) for k, v in self.seconds.items()},
             "seconds_total": round(total, 4),
             "counters": {k: (int(v) if float(v).is_integer() else float(v)) for k, v in counters.items()},
         }
-        if self.stage_workers:
-            out["seconds_beside"] = sorted(self.stage_workers)
+        if self.beside:
+            out["seconds_beside"] = sorted(self.beside)
         return out
