@@ -1,4 +1,4 @@
-"""The direct light runs beside passes 1-3, on a thread of its own (issue 12: pass 2's serial stretches
+"""The direct light runs beside passes 2-3, on a thread of its own (issue 12: pass 2's serial stretches
 leave a core idle). It must compute what it computes in line, count what it casts, stop with the bake
 and pass its errors on."""
 import threading
@@ -21,7 +21,7 @@ def _beside_threads() -> list:
 
 
 @pytest.mark.parametrize("threads", [1, 2])
-def test_the_direct_light_beside_passes_1_to_3_is_the_direct_light_in_line(threads):
+def test_the_direct_light_beside_passes_2_and_3_is_the_direct_light_in_line(threads):
     scene = lamp_box(16)
     beside = bake(scene, preset("FINAL", threads=threads, **FINAL))
     in_line = bake(scene, preset("FINAL", threads=threads, indirect=False, **FINAL))
@@ -31,7 +31,7 @@ def test_the_direct_light_beside_passes_1_to_3_is_the_direct_light_in_line(threa
     a, b = beside.stats["counters"], in_line.stats["counters"]
     assert a["shadow_rays"] == b["shadow_rays"] > 0
     assert a["targets_shaded_direct"] == b["targets_shaded_direct"] == 2
-    # its rays join the bake's count: the direct light's and pass 1-3's, each cast once
+    # its rays join the bake's count: the direct light's and those of passes 1-3, each cast once
     assert a["rays_cast"] > a["shadow_rays"] + a["refine_rays_cast"]
     seconds = beside.stats["seconds"]
     assert "direct" in seconds
