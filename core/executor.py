@@ -156,13 +156,17 @@ class Beside:
         self._thread = threading.Thread(target=run, name="pdic-beside", daemon=True)
 
     def start(self) -> None:
-        if self._thread.ident is None:
+        if not self.started:
             self._thread.start()
 
     @property
+    def started(self) -> bool:
+        return self._thread.ident is not None
+
+    @property
     def running(self) -> bool:
-        """Not finished yet (or not started): waiting for it would block."""
-        return self._thread.ident is None or self._thread.is_alive()
+        """Started and not finished: waiting for it would block."""
+        return self._thread.is_alive()
 
     def wait(self) -> None:
         """Join the side; raises its error, or Cancelled once the watched progress is cancelled."""
@@ -177,7 +181,7 @@ class Beside:
 
     def stop(self) -> None:
         self.progress.cancel()
-        if self._thread.ident is not None:
+        if self.started:
             self._thread.join()
 
 

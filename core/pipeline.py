@@ -193,11 +193,12 @@ class _Beside:
     streams are its chunks' own, so it computes what it would in line.
 
     :meth:`start` starts it; calling it waits for it once (raising its error, or Cancelled), folds its
-    statistics into ``run``'s and runs ``finish()``; :meth:`stop` ends it early.
+    statistics into ``run``'s and runs ``finish()``; :meth:`stop` ends it early. Called before anything
+    started it (passes 2-3 were stored), it runs the stage in line, on the bake's own workers.
     """
 
     def __init__(self, run: "_Run", name: str, stage, finish):
-        self.run, self.name, self.finish = run, name, finish
+        self.run, self.name, self.stage, self.finish = run, name, stage, finish
         self.view = run.caster().serial()
         self.view.clock = EmbreeClock()  # its time inside Embree is its own stage's, not the one it runs beside
         self.stats = BakeStats(workers=1, clock=self.view.clock)
@@ -213,12 +214,15 @@ class _Beside:
         if self._waited:
             return
         self._waited = True
-        if self._thread.running:  # the bake waits for it: that time is the bake's own (seconds.direct_wait)
-            with self.run.stats.stage(f"{self.name}_wait"):
-                self._thread.wait()
-        self._thread.wait()  # raises the stage's error, or Cancelled
-        self.run.stats.fold(self.stats)
-        self.run.caster().rays_cast += self.view.rays_cast
+        if not self._thread.started:
+            self.stage(self.run)
+        else:
+            if self._thread.running:  # the bake waits for it: that time is the bake's own (seconds.direct_wait)
+                with self.run.stats.stage(f"{self.name}_wait"):
+                    self._thread.wait()
+            self._thread.wait()  # raises the stage's error, or Cancelled
+            self.run.stats.fold(self.stats)
+            self.run.caster().rays_cast += self.view.rays_cast
         self.finish()
 
     def stop(self) -> None:

@@ -45,6 +45,25 @@ def test_the_direct_light_beside_passes_2_and_3_is_the_direct_light_in_line(thre
     assert not _beside_threads()
 
 
+def test_with_passes_2_and_3_stored_the_direct_light_runs_in_line_on_the_bakes_workers(tmp_path):
+    """Nothing runs beside it then: a re-bake that changes only the direct light's samples reads passes
+    1-3 and the texels' indirect light from the bake cache, and shades in line as a bake without
+    indirect light does, not on one thread while the workers wait."""
+    from pdic.core.bake_cache import BakeCache
+
+    scene, store = lamp_box(16), BakeCache(tmp_path)
+    bake(scene, preset("FINAL", threads=2, **FINAL), cache=store)
+    again = bake(scene, preset("FINAL", threads=2, direct_samples=2, **FINAL), cache=store)
+    in_line = bake(scene, preset("FINAL", threads=2, direct_samples=2, indirect=False, **FINAL))
+    c = again.stats["counters"]
+    # the store's counts over both bakes: the second read the texels' indirect light, shaded both targets again
+    assert c["cache_hits_indirect"] == 2 and c["cache_misses_direct"] == 4 and c["targets_shaded_direct"] == 2
+    assert "seconds_beside" not in again.stats and "direct_wait" not in again.stats["seconds"]
+    for name in in_line.direct:
+        assert np.array_equal(again.direct[name], in_line.direct[name]), name
+    assert not _beside_threads()
+
+
 def test_a_cancel_during_pass_2_stops_the_direct_light_beside_it():
     progress = Progress(lambda stage, fraction, eta: progress.cancel() if stage.startswith("Pass 2") else None)
     with pytest.raises(Cancelled):
