@@ -73,7 +73,8 @@ Schema (``schema_version`` 1)
     in a gap before their record's surface that gathered their own indirect light, deviation
     gap-gathering; ``holes_refine_gap_hits`` for the hole records). Deviation crevice-records:
     ``crevice_samples`` (int, texel samples in crevices that gathered a record of their own),
-    ``crevice_distance_rays`` (int, the rays cast to tell them, five per valid sample) and
+    ``crevice_distance_rays`` (int, the rays cast to tell them: five per valid sample, cut short,
+    and five more where the short ones left the verdict open) and
     ``crevice_refine_*`` (their gathering, as ``refine_*``).
 ``warnings`` : list of str
     Everything the bake reported but did not stop for (skipped objects, clamped

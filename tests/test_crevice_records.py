@@ -9,7 +9,7 @@ import pytest
 from pdic.bench.path_referee import mean_indirect
 from pdic.core import texels as texel_stage
 from pdic.core.texels import splat
-from pdic.core.crevice_records import local_distance
+from pdic.core.crevice_records import CREVICE_RAYS, in_crevice, local_distance
 from pdic.core.lights import PointLight
 from pdic.core.pipeline import bake
 from pdic.core.rays import RayCaster
@@ -34,6 +34,27 @@ def test_the_local_distance_under_a_plane_is_five_thirds_of_its_height_at_any_sc
     for h in (1e-4, 0.01, 0.3, 1e3):
         assert local_distance(_planes(h), p, n)[0] == pytest.approx(5 / 3 * h, rel=1e-4)  # less the ray offset
     assert local_distance(_planes(-1.0), p, n)[0] == np.inf
+
+
+def test_the_crevice_verdict_from_short_rays_is_the_full_length_verdict():
+    """in_crevice casts its rays only CREVICE_RAYS x ``nearer`` far and bounds the rest: inside a closed box
+    with a shelf, at random points and thresholds, it gives exactly the verdict of the full-length harmonic
+    distance, casting rays again in full where the bounds straddle a threshold."""
+    rng = np.random.default_rng(7)
+    caster = RayCaster(np.concatenate([*closed_box([0, 0, 0], [2.0, 1.0, 1.5]),
+                                       quad([0.2, 0.1, 0.3], [1.2, 0, 0], [0, 0.8, 0])]), extent=2.0)
+    m = 4000
+    p = rng.uniform([0.0, 0.0, 0.0], [2.0, 1.0, 0.0], (m, 3))  # on the floor, under the shelf 0.3 m up or beside it
+    n = np.tile([0.0, 0.0, 1.0], (m, 1))
+    H = local_distance(caster, p, n)
+    recast = 0
+    for nearer in (0.1, 0.35, 0.6, 2.0):
+        farther = 0.05 * nearer
+        verdict, rays = in_crevice(caster, p, n, nearer, farther)
+        np.testing.assert_array_equal(verdict, (H < nearer) & (H >= farther))
+        assert 0 < verdict.sum() < m
+        recast += rays - CREVICE_RAYS * m
+    assert recast > 0
 
 
 def _plate_before_a_wall():
