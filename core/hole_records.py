@@ -11,6 +11,7 @@ instead of all of this (deviation: crevice-records, :mod:`core.crevice_records`)
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -19,7 +20,7 @@ from scipy.spatial import cKDTree
 from .constants import FINE_ZONE_TEXELS, GAP_TEXELS, NEAREST_RECORDS, STREAM_HOLE_ORDER, STREAM_REFINE_HOLES, STREAM_SKY
 from .crevice_records import crevice_irradiance, crevice_samples
 from .density import PhotonDensity
-from .executor import Executor, Progress
+from .executor import Beside, Executor, Progress
 from .interpolation import interpolate, texel_values
 from .irradiance_cache import CacheParameters, IrradianceCache, cache_for_holes
 from .refinement import GatherSources, refine_records
@@ -60,28 +61,65 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
             crevice = valid[found]
             valid = np.setdiff1d(valid, crevice, assume_unique=True)
         crevice_counters = {"crevice_samples": len(crevice), "crevice_distance_rays": rays}
-        progress.begin("Interpolating the cache at texels")
-        valid_points = points.take(valid, executor.map)
-        merged, sample_to_point = valid_points.per_texel()  # inside samples are not averaged in
-        filled = fill_holes(scene, caster, density, sources, cache, merged, params, settings, executor, progress,
-                            texel_size, sky)
-        E[valid] = filled.E[sample_to_point]
-        fine = _fine_samples(filled.smallest, sample_to_point, texel_size, settings)
-        if len(fine):
-            E_fine, w_fine = interpolate(filled.cache, params.a, settings.gradients, valid_points.p[fine],
-                                         valid_points.n_shading[fine], executor, progress,
-                                         caster=_record_visibility(caster, params), sky=sky is not None,
-                                         layers=settings.refine)
-            covered = w_fine > 0
-            E[valid[fine[covered]]] = E_fine[covered]
+        gathering = _CreviceGathering(scene, caster, sources, points.p[crevice], points.n_shading[crevice], params,
+                                      settings, executor, progress)
+        try:
+            progress.begin("Interpolating the cache at texels")
+            valid_points = points.take(valid, executor.map)
+            merged, sample_to_point = valid_points.per_texel()  # inside samples are not averaged in
+            filled = fill_holes(scene, caster, density, sources, cache, merged, params, settings, executor, progress,
+                                texel_size, sky)
+            E[valid] = filled.E[sample_to_point]
+            fine = _fine_samples(filled.smallest, sample_to_point, texel_size, settings)
+            if len(fine):
+                E_fine, w_fine = interpolate(filled.cache, params.a, settings.gradients, valid_points.p[fine],
+                                             valid_points.n_shading[fine], executor, progress,
+                                             caster=_record_visibility(caster, params), sky=sky is not None,
+                                             layers=settings.refine)
+                covered = w_fine > 0
+                E[valid[fine[covered]]] = E_fine[covered]
+        except BaseException:
+            gathering.stop()
+            raise
         if len(crevice):
             progress.begin(f"Gathering at {len(crevice):,} texel samples in crevices")
-            E[crevice], refined = crevice_irradiance(scene, caster, sources, points.p[crevice],
-                                                     points.n_shading[crevice], params, settings, executor, progress)
+            E[crevice], refined = gathering()
             crevice_counters.update({f"crevice_{key}": value for key, value in refined.items()})
     stats.add(texel_points_interpolated=len(merged) + len(fine), texel_points_unfilled=filled.unfilled,
               **{f"holes_{key}": value for key, value in filled.counters.items()}, **crevice_counters)
     return E, filled.cache.take(slice(len(cache), None)), weights
+
+
+class _CreviceGathering:
+    """:func:`~core.crevice_records.crevice_irradiance` at the crevice samples p facing n (m, 3), started on a
+    thread of its own (:class:`~core.executor.Beside`) that runs its chunks on the bake's workers while
+    the calling thread fills the other samples' holes: neither needs the other's results, and the holes'
+    serial stretches (Algorithm 1 over the uncovered samples, the zone grids) leave a worker idle. Calling
+    it waits and returns (E, counters); :meth:`stop` ends it early. On one worker or a Dask cluster it
+    runs when called. Its chunks draw their own random streams, so it computes what it would in line."""
+
+    def __init__(self, scene, caster, sources, p, n, params, settings, executor, progress):
+        self.caster, self.progress = caster, progress
+        self.compute = lambda view, progress: crevice_irradiance(scene, view, sources, p, n, params, settings,
+                                                                 executor, progress)
+        self.view = copy.copy(caster)  # the same BVH and workers; its rays count apart (two threads add)
+        self.view.rays_cast = 0
+        self.out, self.side = [], None
+        if len(p) and executor.in_process and executor.workers > 1:
+            own = Progress()  # silent: the calling thread reports the texels' stage
+            self.side = Beside(lambda: self.out.append(self.compute(self.view, own)), own, progress)
+            self.side.start()
+
+    def __call__(self) -> tuple[np.ndarray, dict]:
+        if self.side is None:
+            return self.compute(self.caster, self.progress)
+        self.side.wait()
+        self.caster.rays_cast += self.view.rays_cast
+        return self.out[0]
+
+    def stop(self) -> None:
+        if self.side is not None:
+            self.side.stop()
 
 
 def _record_visibility(caster, params: CacheParameters):

@@ -109,3 +109,32 @@ def test_crevice_records_leave_the_open_wall_to_the_cache(plate):
     behind[2:6, 3:5] = True
     np.testing.assert_array_equal(on.indirect["wall"][~behind], off.indirect["wall"][~behind])
     assert (on.indirect["wall"] != off.indirect["wall"]).any(axis=2)[behind].all()
+
+
+def test_crevice_records_gathered_beside_the_holes_are_those_gathered_in_line():
+    """With two workers the crevice samples' records gather on a thread of their own while the other samples'
+    holes are filled (core/hole_records.py): the maps and the rays counted are one worker's, bit for bit."""
+    import threading
+
+    from pdic.core.executor import Cancelled, Progress
+
+    scene = _plate_before_a_wall()
+    seen = set()
+
+    def watch(stage, fraction, eta):
+        if stage.startswith("Interpolating the cache at texels"):
+            seen.update(t.name for t in threading.enumerate())
+
+    one = bake(scene, preset("FINAL", photons=100_000, threads=1))
+    two = bake(scene, preset("FINAL", photons=100_000, threads=2), Progress(watch))
+    assert "pdic-beside" in seen
+    for name in one.indirect:
+        assert np.array_equal(one.indirect[name], two.indirect[name]), name
+    a, b = one.stats["counters"], two.stats["counters"]
+    assert a["crevice_samples"] == b["crevice_samples"] >= 64
+    assert a["crevice_refine_rays_cast"] == b["crevice_refine_rays_cast"] > 0 and a["rays_cast"] == b["rays_cast"]
+
+    progress = Progress(lambda stage, f, eta: progress.cancel() if stage.startswith("Interpolating") else None)
+    with pytest.raises(Cancelled):
+        bake(scene, preset("FINAL", photons=100_000, threads=2), progress)
+    assert not [t for t in threading.enumerate() if t.name == "pdic-beside"]
