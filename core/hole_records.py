@@ -102,10 +102,10 @@ class _CreviceGathering:
         self.caster, self.progress = caster, progress
         self.compute = lambda view, progress: crevice_irradiance(scene, view, sources, p, n, params, settings,
                                                                  executor, progress)
-        self.view = copy.copy(caster)  # the same BVH and workers; its rays count apart (two threads add)
-        self.view.rays_cast = 0
         self.out, self.side = [], None
         if len(p) and executor.in_process and executor.workers > 1:
+            self.view = copy.copy(caster)  # the same BVH and workers; its rays count apart (two threads add)
+            self.view.rays_cast = 0
             own = Progress()  # silent: the calling thread reports the texels' stage
             self.side = Beside(lambda: self.out.append(self.compute(self.view, own)), own, progress)
             self.side.start()
