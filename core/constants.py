@@ -79,6 +79,11 @@ R_MIN_FLOOR = 1e-9
 CELL_DISTANCE_FLOOR = 1e-3
 """No gathering cell is nearer than this fraction of the smallest zone a R_min: a hit at
 (nearly) zero distance would make the translational gradient overflow."""
+THIN_COVERAGE = 3.0
+"""deviation: thin-coverage: a texel sample whose accepted records' Ward weights (Equation 1) sum below
+this over a is a hole too, in the first round of hole records: three times Equation 2's threshold, so a
+sample read from one record alone must lie within a third of that record's zone (2: within half;
+docs/DEVIATIONS.md thin-coverage has both measured)."""
 GRADIENT_LIMIT = 0.3
 """Gradient limiting: a record's translational gradient may change E_k by at most this fraction of it
 across its zone (|grad_t| <= GRADIENT_LIMIT E_k / (a R_k)). Where the zone is wider than the distances

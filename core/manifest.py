@@ -75,7 +75,9 @@ Schema (``schema_version`` 1)
     ``crevice_samples`` (int, texel samples in crevices that gathered a record of their own),
     ``crevice_distance_rays`` (int, the rays cast to tell them: five per valid sample, cut short,
     and five more where the short ones left the verdict open) and
-    ``crevice_refine_*`` (their gathering, as ``refine_*``).
+    ``crevice_refine_*`` (their gathering, as ``refine_*``). Deviation thin-coverage:
+    ``holes_thin_samples`` (int, texel points records accepted with too little weight, which the first
+    round of hole records covered too).
 ``warnings`` : list of str
     Everything the bake reported but did not stop for (skipped objects, clamped
     values, degenerate triangles).

@@ -88,6 +88,9 @@ class Deviations:
     gap_fill: bool = True
     """Texel samples no record accepts take Equation 3 over zones widened by GAP_TEXELS texels (walls and
     visibility checked past a zone) before any hole record is placed."""
+    thin_coverage: bool = True
+    """Texel samples whose accepted records' weights sum below THIN_COVERAGE / a get hole records too (first
+    round), as samples no record accepts do; Final with standard gathering only."""
     nearest_record_fallback: bool = True
     """Texel samples still uncovered after the hole rounds take the nearest record's E_k."""
     record_visibility: bool = True

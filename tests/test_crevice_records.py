@@ -13,7 +13,7 @@ from pdic.core.crevice_records import CREVICE_RAYS, in_crevice, local_distance
 from pdic.core.lights import PointLight
 from pdic.core.pipeline import bake
 from pdic.core.rays import RayCaster
-from pdic.core.settings import preset
+from pdic.core.settings import Deviations, preset
 from scenes import box_faces, closed_box, quad, quad_scene
 
 GAP = 0.02
@@ -70,7 +70,9 @@ def _plate_before_a_wall():
 @pytest.fixture(scope="module")
 def plate():
     scene = _plate_before_a_wall()
-    settings = preset("FINAL", photons=300_000, threads=1)
+    # thin-coverage off: Algorithm 1 places its hole records over the other samples, which the crevice
+    # samples join or leave, so the open wall's records would differ for a reason of their own
+    settings = preset("FINAL", photons=300_000, threads=1, deviations=Deviations(thin_coverage=False))
     on = bake(scene, settings)
     off = bake(scene, replace(settings, deviations=replace(settings.deviations, crevice_records=False)))
     # A path tracer at the plate's texel samples (4,000 paths each), as PDIC defines a texel: their mean.
