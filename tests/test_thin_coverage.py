@@ -2,9 +2,9 @@
 
 A sample that one record accepts near its zone's edge reads that record's E_k from up to a R_k
 away: on Sponza's upper arches a moulding's sample read a single record 9 cm off where the light
-halves every 9 cm (E/pi 0.21 against a path tracer's 0.11). Samples whose accepted weights sum
-below THIN_COVERAGE / a are holes too in the first round; Equation 3 at them then runs over the old
-records and the new.
+halves every 9 cm (E/pi 0.21 against a path tracer's 0.11). At Final, samples whose accepted weights
+sum below THIN_COVERAGE / a are holes too in the first round; Equation 3 at them then runs over the
+old records and the new.
 """
 from types import SimpleNamespace
 
