@@ -194,13 +194,13 @@ def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | N
 
     E, w, smallest = lookup(cache, slice(None))
     hole_records, counters = 0, {}
+    # deviation: thin-coverage, docs/DEVIATIONS.md: Final's hole records, gathered by standard gathering
+    # (refined by photon-path reuse they read their zones' few photons: the Cornell box 6.6 -> 7.5 %)
+    thin_coverage = settings.deviations.thin_coverage and settings.refine and not settings.reuse_photon_paths
     for round_ in range(settings.deviations.hole_rounds):  # deviation: hole-rounds, docs/DEVIATIONS.md
         holes = np.flatnonzero(w <= 0)
         thin = np.zeros(0, np.int64)
-        # deviation: thin-coverage, docs/DEVIATIONS.md: Final's hole records, gathered by standard gathering
-        # (refined by photon-path reuse they read their zones' few photons: the Cornell box 6.6 -> 7.5 %)
-        gathered = settings.refine and not settings.reuse_photon_paths
-        if round_ == 0 and settings.deviations.thin_coverage and gathered:
+        if round_ == 0 and thin_coverage:
             thin = np.flatnonzero((w > 0) & (w < THIN_COVERAGE / params.a))
             counters["thin_samples"] = len(thin)
         if len(holes) == 0 and len(thin) == 0:
@@ -222,11 +222,12 @@ def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | N
         for key, value in refined.items():
             counters[key] = counters.get(key, 0) + value
         cache = cache.extend(new)
-        # Every record before this round refused these points (each pair's test is its own), so Equation 3
-        # over the new records alone is the sum over all, term for term: no zone grid over the whole cache.
+        # Every record before this round refused the holes (each pair's test is its own), so Equation 3 over
+        # the new records alone is the sum over all, term for term: no zone grid over the whole cache. The
+        # thin points add the new records' sums to those of the records that accepted them.
         E_new, w_new, z_new = lookup(new, asked)
         E[holes], w[holes], smallest[holes] = E_new[:len(holes)], w_new[:len(holes)], z_new[:len(holes)]
-        if len(thin):  # older records accepted these: Equation 3's sums over both
+        if len(thin):
             E_t, w_t, z_t = E_new[len(holes):], w_new[len(holes):], z_new[len(holes):]
             w_all = w[thin] + w_t
             E[thin] = (E[thin] * w[thin, None] + E_t * w_t[:, None]) / w_all[:, None]
