@@ -15,7 +15,8 @@ Prints the noise-corrected relative RMSE per texel and on 8x8 blocks, the same o
 texels (bench/run.py ``interior_texels``) and over comparable ones (``comparable_texels``: no other
 face within two ray offsets of a sample), the mean ratio, and the share of 8x8 blocks off by
 more than 20 % (blocks whose reference mean is above 5 % of the map's, so the noise of two
-1,024-spp bakes cannot decide it) with the worst of them and the parts of the cathedral they
+1,024-spp bakes cannot decide it), over all texels, comparable ones and those with no sample inside
+closed geometry (``BakeResult.buried``), with the worst of them and the parts of the cathedral they
 lie on. Writes the maps to ``--out``.
 """
 from __future__ import annotations
@@ -110,7 +111,7 @@ def main(argv=None):
     baked = coverage & result.centre_inside[ob.name]
     interior, comparable = texel_masks(job.extraction.scene)[ob.name]
     np.savez_compressed(folder / f"d{args.detail}_{W}.npz", P=P, C1=pair[0], C2=pair[1], baked=baked,
-                        interior=interior, comparable=comparable)
+                        interior=interior, comparable=comparable, buried=result.buried[ob.name])
     err = errors(P, tuple(pair), baked, interior)
     ntri = sum(len(p.vertices) - 2 for p in ob.data.polygons)
     print(f"detail {args.detail}: {ntri:,} triangles, map {W}x{H}, {int(baked.sum()):,} texels compared "
@@ -125,9 +126,19 @@ def main(argv=None):
     print(f"comparable texels ({int((baked & comparable).sum()):,}: no other face within two ray offsets of a "
           f"sample, bench/run.py comparable_texels): per texel {fair['texel']:.2%}, 8x8 blocks {fair['block']:.2%}")
 
+    # Where every ray from a sample meets a back face (a capital top under an arch's mesh, which has no end
+    # faces) PDIC's texel means hold 0, its light map the whole neighbours' light (docs/DEVIATIONS.md
+    # buried-texels), while Cycles and the path referee find the light that enters through the opening.
+    # No camera sees those texels.
+    outside = baked & ~result.buried[ob.name]
+    clear = errors(P, tuple(pair), outside)
+    print(f"texels with no sample inside closed geometry ({int(outside.sum()):,}): per texel {clear['texel']:.2%}, "
+          f"8x8 blocks {clear['block']:.2%}")
+
     reference = 0.5 * (pair[0] + pair[1])
     rel, lp, lc, count = blocks_off(P, reference, baked, "")
     blocks_off(P, reference, baked & comparable, "comparable texels: ")
+    blocks_off(P, reference, outside, "texels with no sample inside closed geometry: ")
     order = np.argsort(rel, axis=None)[::-1][:args.worst]
     for y, x in zip(*np.unravel_index(order, rel.shape)):
         # The parts of the block's own texels: a chart fragment's block centre is often on no triangle.

@@ -8,9 +8,11 @@ Needs bench/converged_references.py's output (references in bench/references/, t
 core scenes in bench/results/converged/). Per bake: bias = sum PDIC / sum reference - 1 over the
 texels both cover, the noise-corrected relative RMS error (bench/run.py), the same error over
 *comparable* texels (``bench.run.comparable_texels``: no other face within two ray offsets of a
-sample, where Cycles' bake rays see other geometry than PDIC's; chart edges in) and over *interior*
-texels only (``bench.run.interior_texels``), the 8x8 blocks judged and those off by more than 20 %
-(``bench.run.blocks_off``, over all and over comparable texels), photons stored and the bake's CPU
+sample, where Cycles' bake rays see other geometry than PDIC's; chart edges in), over *interior*
+texels only (``bench.run.interior_texels``) and over texels with no sample inside closed geometry
+(``BakeResult.buried``), the 8x8 blocks judged and those off by more than 20 %
+(``bench.run.blocks_off``, over all texels, comparable ones and those with no sample inside closed
+geometry, ``BakeResult.buried``), photons stored and the bake's CPU
 seconds (``threads=1``). ``--figure5`` runs bench/run.py's [Chr99]-vs-Preview comparison against the same
 references instead.
 """
@@ -70,14 +72,19 @@ def measure(name: str, scene, pair, quality: str, overrides: dict, switches: str
     c, s = result.stats["counters"], result.stats["seconds"]
     inside = {n: cov & masks[n][0] for n, cov in result.centre_inside.items()}
     comparable = {n: cov & masks[n][1] for n, cov in result.centre_inside.items()}
+    # Texels with no sample inside closed geometry: a camera sees them. Inside, PDIC's texel means hold 0
+    # where Cycles finds light that entered a shell through an opening (bench/cathedral_indirect.py).
+    outside = {n: cov & ~result.buried[n] for n, cov in result.centre_inside.items()}
     row = dict(scene=name, quality=quality, **overrides, deviations=switches, cpu_s=cpu,
                bias=bench_run.mean_bias(result.indirect, result.centre_inside, pair),
                bias_interior=bench_run.mean_bias(result.indirect, inside, pair),
                error=bench_run.noise_corrected_error(result.indirect, result.centre_inside, pair),
                error_comparable=bench_run.noise_corrected_error(result.indirect, comparable, pair),
                error_interior=bench_run.noise_corrected_error(result.indirect, inside, pair),
+               error_outside=bench_run.noise_corrected_error(result.indirect, outside, pair),
                blocks_judged_off=bench_run.blocks_off(result.indirect, result.centre_inside, pair),
                blocks_judged_off_comparable=bench_run.blocks_off(result.indirect, comparable, pair),
+               blocks_judged_off_outside=bench_run.blocks_off(result.indirect, outside, pair),
                photons_stored=c.get("photons_stored"), photon_bytes=c.get("photon_bytes"),
                photons_before_control=c.get("photons_before_control"), records=c.get("records"),
                hole_records=c.get("hole_records"), stage_seconds=s)
