@@ -15,8 +15,8 @@ Prints the noise-corrected relative RMSE per texel and on 8x8 blocks, the same o
 texels (bench/run.py ``interior_texels``) and over comparable ones (``comparable_texels``: no other
 face within two ray offsets of a sample), the mean ratio, and the share of 8x8 blocks off by
 more than 20 % (blocks whose reference mean is above 5 % of the map's, so the noise of two
-1,024-spp bakes cannot decide it), over all texels, comparable ones and those with no sample inside
-closed geometry (``BakeResult.buried``), with the worst of them and the parts of the cathedral they
+1,024-spp bakes cannot decide it), over all texels, comparable ones and those not buried (no part of
+the footprint inside closed geometry, ``BakeResult.buried``), with the worst of them and the parts of the cathedral they
 lie on. Writes the maps to ``--out``.
 """
 from __future__ import annotations
@@ -129,16 +129,16 @@ def main(argv=None):
     # Where every ray from a sample meets a back face (a capital top under an arch's mesh, which has no end
     # faces) PDIC's texel means hold 0, its light map the whole neighbours' light (docs/DEVIATIONS.md
     # buried-texels), while Cycles and the path referee find the light that enters through the opening.
-    # No camera sees those texels.
+    # No camera sees those parts of the texels.
     outside = baked & ~result.buried[ob.name]
     clear = errors(P, tuple(pair), outside)
-    print(f"texels with no sample inside closed geometry ({int(outside.sum()):,}): per texel {clear['texel']:.2%}, "
+    print(f"texels not buried ({int(outside.sum()):,}: no part inside closed geometry): per texel {clear['texel']:.2%}, "
           f"8x8 blocks {clear['block']:.2%}")
 
     reference = 0.5 * (pair[0] + pair[1])
     rel, lp, lc, count = blocks_off(P, reference, baked, "")
     blocks_off(P, reference, baked & comparable, "comparable texels: ")
-    blocks_off(P, reference, outside, "texels with no sample inside closed geometry: ")
+    blocks_off(P, reference, outside, "texels not buried: ")
     order = np.argsort(rel, axis=None)[::-1][:args.worst]
     for y, x in zip(*np.unravel_index(order, rel.shape)):
         # The parts of the block's own texels: a chart fragment's block centre is often on no triangle.

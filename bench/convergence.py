@@ -9,10 +9,9 @@ core scenes in bench/results/converged/). Per bake: bias = sum PDIC / sum refere
 texels both cover, the noise-corrected relative RMS error (bench/run.py), the same error over
 *comparable* texels (``bench.run.comparable_texels``: no other face within two ray offsets of a
 sample, where Cycles' bake rays see other geometry than PDIC's; chart edges in), over *interior*
-texels only (``bench.run.interior_texels``) and over texels with no sample inside closed geometry
-(``BakeResult.buried``), the 8x8 blocks judged and those off by more than 20 %
-(``bench.run.blocks_off``, over all texels, comparable ones and those with no sample inside closed
-geometry, ``BakeResult.buried``), photons stored and the bake's CPU
+texels only (``bench.run.interior_texels``) and over texels not buried (no part of the footprint
+inside closed geometry, ``BakeResult.buried``), the 8x8 blocks judged and those off by more than 20 %
+(``bench.run.blocks_off``, over all texels, comparable ones and those not buried), photons stored and the bake's CPU
 seconds (``threads=1``). ``--figure5`` runs bench/run.py's [Chr99]-vs-Preview comparison against the same
 references instead.
 """
@@ -72,7 +71,7 @@ def measure(name: str, scene, pair, quality: str, overrides: dict, switches: str
     c, s = result.stats["counters"], result.stats["seconds"]
     inside = {n: cov & masks[n][0] for n, cov in result.centre_inside.items()}
     comparable = {n: cov & masks[n][1] for n, cov in result.centre_inside.items()}
-    # Texels with no sample inside closed geometry: a camera sees them. Inside, PDIC's texel means hold 0
+    # Texels not buried (no part inside closed geometry): a camera sees them. Inside, PDIC's texel means hold 0
     # where Cycles finds light that entered a shell through an opening (bench/cathedral_indirect.py).
     outside = {n: cov & ~result.buried[n] for n, cov in result.centre_inside.items()}
     row = dict(scene=name, quality=quality, **overrides, deviations=switches, cpu_s=cpu,
