@@ -17,7 +17,7 @@ from .executor import TEXEL_CHUNK, slices
 from .irradiance_cache import IrradianceCache
 from .record_walls import beyond_wall_and_reach, wall_clearance
 from .ward import accepted, record_estimate, ward_weight
-from .zone_grid import ZoneGrid
+from .zone_grid import CELL_PER_ZONE, ZoneGrid, cell_per_zone
 
 
 @dataclass
@@ -44,6 +44,9 @@ class CacheLookup:
     sky: bool = False
     """Interpolate the records' gathered sky (deviation: sky-gathering) with their E_k, same weights:
     E comes out (m, 6), the sky in channels 3-5. Needs a cache with E_sky."""
+    cell_per_zone: float = CELL_PER_ZONE
+    """The zone grid's cell side in median zone radii (:func:`core.zone_grid.cell_per_zone`); the pairs
+    found, and so E, do not depend on it."""
     zone: np.ndarray = field(init=False, repr=False)
     clearance: np.ndarray = field(init=False, repr=False)
     grid: ZoneGrid = field(init=False, repr=False)
@@ -51,7 +54,7 @@ class CacheLookup:
     def __post_init__(self):
         self.zone = self.a * np.asarray(self.cache.R, dtype=np.float64) + self.margin
         self.clearance = wall_clearance(self.cache.wall)
-        self.grid = ZoneGrid(self.cache.p, self.zone)
+        self.grid = ZoneGrid(self.cache.p, self.zone, self.cell_per_zone)
         self.values = texel_values(self.cache, self.sky)
 
     def candidates(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -153,7 +156,8 @@ def interpolate(cache: IrradianceCache, a: float, gradients: bool, p: np.ndarray
     margin : zones widened by this distance (deviation: gap-fill, see :attr:`CacheLookup.margin`).
     layers : test records in a layer under the point's surface too (see :attr:`CacheLookup.layers`).
     """
-    lookup = CacheLookup(cache, a, gradients, margin=margin, sky=sky, layers=layers)
+    lookup = CacheLookup(cache, a, gradients, margin=margin, sky=sky, layers=layers,
+                         cell_per_zone=cell_per_zone(len(p), len(cache)))
 
     def run(index, s):
         chunk = copy.copy(lookup)  # shares the cache's arrays; a view of the BVH per chunk counts its own rays

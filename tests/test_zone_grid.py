@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from pdic.core.zone_grid import ZoneGrid
+from pdic.core.zone_grid import CELL_PER_ZONE, DENSE_CELL_PER_ZONE, ZoneGrid, cell_per_zone
 
 
 def brute_pairs(q, p, zone):
@@ -11,20 +11,27 @@ def brute_pairs(q, p, zone):
     return rows, recs
 
 
+@pytest.mark.parametrize("cell", [CELL_PER_ZONE, DENSE_CELL_PER_ZONE])
 @pytest.mark.parametrize("spread", [1.0, 30.0, 1e4])
-def test_pairs_are_exactly_the_points_inside_each_zone(spread):
-    """Zones from 0.01 m up to ``spread`` times that (a few huge R_k beside many small ones)."""
+def test_pairs_are_exactly_the_points_inside_each_zone(spread, cell):
+    """Zones from 0.01 m up to ``spread`` times that (a few huge R_k beside many small ones), at both cell
+    sizes a lookup picks: the pairs, and their order, do not depend on it."""
     rng = np.random.default_rng(7)
     p = rng.random((400, 3)) * 10.0
     zone = 0.01 * np.exp(rng.random(400) * np.log(spread)) + 0.3 * rng.random(400)
     q = np.concatenate([rng.random((3000, 3)) * 12.0 - 1.0, p[:50] + 1e-3])  # some outside, some on records
-    rows, recs = ZoneGrid(p, zone).pairs(q)
+    rows, recs = ZoneGrid(p, zone, cell).pairs(q)
     want_rows, want_recs = brute_pairs(q, p, zone)
     assert len(rows) == len(want_rows) > 0
     got = np.sort(rows * len(p) + recs)
     assert np.array_equal(got, np.sort(want_rows * len(p) + want_recs))
     # Grouped by point, points ascending, each point's records ascending: Equation 3's sum order.
     assert np.all(np.diff(rows * len(p) + recs) > 0)
+
+
+def test_finer_cells_where_many_points_query_each_record():
+    assert cell_per_zone(points=3_200_000, records=28_000) == DENSE_CELL_PER_ZONE  # Preview's fine texel samples
+    assert cell_per_zone(points=45_000, records=154_000) == CELL_PER_ZONE  # a hole round over Final's records
 
 
 def test_zero_zones_and_empty_inputs():
