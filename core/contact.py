@@ -19,6 +19,8 @@ triangle is never in the way, and one ray into the back of those that touch.
 """
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 from .rays import RayCaster
@@ -54,6 +56,18 @@ class ContactFaces:
             members = np.flatnonzero(self.sign == s)
             if len(members):
                 self._casters[s] = (members, RayCaster(positions[members], caster.extent))
+
+    def view(self) -> "ContactFaces":
+        """These tests for another thread: the same BVHs, rays counted apart (:meth:`absorb` adds them back),
+        so two stages that test samples at once keep exact counts."""
+        view = copy.copy(self)
+        view.solid_rays = 0
+        view._casters = {s: (members, caster.serial()) for s, (members, caster) in self._casters.items()}
+        return view
+
+    def absorb(self, view: "ContactFaces") -> None:
+        """Count the rays a :meth:`view` of these tests cast as these tests' own."""
+        self.solid_rays += view.rays_cast
 
     @property
     def any(self) -> bool:

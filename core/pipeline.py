@@ -120,8 +120,10 @@ def _bake(run: "_Run") -> BakeResult:
     cache = photons = lighting = None
     if run.settings.indirect and run.settings.photons > 0:
         params = cache_parameters(run.scene, [t.raster for t in targets], run.settings)
-        # The direct light needs nothing of passes 2-3: it runs beside them, on the core pass 2's
-        # serial stretches leave idle (Sponza 16 texels/m: 11 of pass 2's 30 core-seconds).
+        # The direct light needs nothing of passes 2-3 or of the texels' indirect light: it runs beside
+        # them, on the core pass 2's serial stretches leave idle (Sponza 16 texels/m: 11 of pass 2's 30
+        # core-seconds), and on one thread, so the first target's texels' stage starts beside what is left
+        # of it (Sponza at 2048^2, Preview: the bake waited 8-9 s for it with one core idle).
         beside = run.executor.in_process and run.executor.workers > 1
         direct = shade_direct_at_targets(run, targets, beside=beside)
         try:
@@ -202,8 +204,10 @@ class _Beside:
         self.view = run.caster().serial()
         self.view.clock = EmbreeClock()  # its time inside Embree is its own stage's, not the one it runs beside
         self.stats = BakeStats(workers=1, clock=self.view.clock)
+        contact = run.contact()
+        self.contact = None if contact is None else contact.view()  # the texels' stage tests samples meanwhile
         side = replace(run, progress=Progress(), executor=serial_executor(), stats=self.stats, _caster=self.view,
-                       _contact=run.contact())
+                       _contact=self.contact)
         self._thread = Beside(lambda: stage(side), side.progress, run.progress)
         self._waited = False
 
@@ -223,6 +227,8 @@ class _Beside:
             self._thread.wait()  # raises the stage's error, or Cancelled
             self.run.stats.fold(self.stats)
             self.run.caster().rays_cast += self.view.rays_cast
+            if self.contact is not None:
+                self.run.contact().absorb(self.contact)
         self.finish()
 
     def stop(self) -> None:
@@ -475,8 +481,8 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
     """Passes 1-3 (only if some target still needs them), then Equation 3 with hole records at
     every target's texels. Returns the full cache (hole records included), the photon map and
     the photons' lighting. direct : the direct light to run beside passes 2-3 (:func:`shade_direct_at_targets`):
-    started once the photons are traced (their tracing keeps every core busy), waited for before the
-    texels' stage, which shares its contact faces."""
+    started once the photons are traced (their tracing keeps every core busy), waited for after the first
+    target's texels' stage."""
     direct = direct or _InLine()
     settings, store = run.settings, run.store
     photon_bounces = settings.max_bounces - 1 if settings.refine else settings.max_bounces
@@ -498,7 +504,6 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
         if not passes:
             passes.append(store.memoise("cache", cache_key, passes_1_to_3))
             passes.append(_hole_sources(run, passes[0], params))
-        direct()
         (cache, _, _), (density, sources) = passes
         shaded.append(t)
         return indirect_at_texels(run.scene, run.caster(), density, sources, cache, index, t.points, t.texel_size,

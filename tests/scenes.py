@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pdic.core.scene import BakeTarget, Geometry, Materials, PointLight, Scene, recentre
+from pdic.core.scene import BakeTarget, Geometry, Materials, PointLight, Scene, World, recentre
 
 
 def icosphere(subdivisions: int = 3, radius: float = 1.0, inward: bool = True) -> np.ndarray:
@@ -134,3 +134,18 @@ def lit(tris: np.ndarray, *lights, world=None) -> Scene:
     from pdic.core.scene import World
 
     return Scene(geometry(tris), Materials.default(1), lights=lights, world=world or World())
+
+
+def box_on_ground(res: int = 16):
+    """A 4 x 4 m ground plane (one face, up), a closed unit box standing on it (its bottom face down, in
+    the ground's plane) and a 1 x 1 m upright sheet of two faces back to back (split along different
+    diagonals: not copies of each other), under a white sky."""
+    from dataclasses import replace
+
+    X, Y, Z = np.eye(3)
+    faces = [quad(np.array([-2.0, -2.0, 0.0]), 4 * X, 4 * Y),  # 0 ground
+             quad(np.zeros(3), Y, X), quad(Z, X, Y), quad(np.zeros(3), X, Z), quad(Y, Z, X),  # 1 bottom, top, front, back
+             quad(np.zeros(3), Z, Y), quad(X, Y, Z),  # left, right
+             quad(np.array([-1.5, 1.5, 0.0]), X, Z), quad(np.array([-0.5, 1.5, 0.0]), -X, Z)]  # 7, 8 the sheet
+    targets = {"ground": (0, res), "bottom": (1, res), "top": (2, res), "sheet_front": (7, res), "sheet_back": (8, res)}
+    return replace(quad_scene(faces, targets, []), world=World(np.full(3, 1.0)))

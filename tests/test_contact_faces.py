@@ -12,22 +12,10 @@ from pdic.core.rays import RayCaster
 from pdic.core.scene import World
 from pdic.core.settings import Deviations, preset
 
-from scenes import quad, quad_scene
+from scenes import box_on_ground, quad, quad_scene
 
 FINAL = preset("FINAL", threads=2)
 X, Y, Z = (np.eye(3)[i] for i in range(3))
-
-
-def _box_on_ground(res: int = 16):
-    """A 4 x 4 m ground plane (one face, up), a closed unit box standing on it (its bottom face down, in
-    the ground's plane) and a 1 x 1 m upright sheet of two faces back to back (split along different
-    diagonals: not copies of each other), under a white sky."""
-    faces = [quad(np.array([-2.0, -2.0, 0.0]), 4 * X, 4 * Y),  # 0 ground
-             quad(np.zeros(3), Y, X), quad(Z, X, Y), quad(np.zeros(3), X, Z), quad(Y, Z, X),  # 1 bottom, top, front, back
-             quad(np.zeros(3), Z, Y), quad(X, Y, Z),  # left, right
-             quad(np.array([-1.5, 1.5, 0.0]), X, Z), quad(np.array([-0.5, 1.5, 0.0]), -X, Z)]  # 7, 8 the sheet
-    targets = {"ground": (0, res), "bottom": (1, res), "top": (2, res), "sheet_front": (7, res), "sheet_back": (8, res)}
-    return replace(quad_scene(faces, targets, []), world=World(np.full(3, 1.0)))
 
 
 def test_a_box_bottom_on_the_ground_gets_no_light_and_a_two_sided_sheet_keeps_both_sides():
@@ -36,7 +24,7 @@ def test_a_box_bottom_on_the_ground_gets_no_light_and_a_two_sided_sheet_keeps_bo
     same way but bound no solid (a ray into a face's back meets no back face): one surface seen from two
     sides, both see the sky as before, to the bit. The ground under the box is not the skin of a solid
     either: texel validity's vote buries it (its rays meet the box's inside)."""
-    scene = _box_on_ground()
+    scene = box_on_ground()
     on = bake(scene, FINAL)
     off = bake(scene, replace(FINAL, deviations=Deviations(contact_faces=False)))
     inside = on.centre_inside["bottom"]

@@ -11,7 +11,7 @@ from pdic.core.executor import Beside, Cancelled, Progress
 from pdic.core.pipeline import bake
 from pdic.core.settings import preset
 
-from scenes import lamp_box
+from scenes import box_on_ground, lamp_box
 
 FINAL = dict(photons=4000, max_bounces=3, hemisphere_theta=6, hemisphere_phi=12)
 
@@ -66,6 +66,28 @@ def test_with_passes_2_and_3_stored_the_direct_light_runs_in_line_on_the_bakes_w
 
 def test_a_cancel_during_pass_2_stops_the_direct_light_beside_it():
     progress = Progress(lambda stage, fraction, eta: progress.cancel() if stage.startswith("Pass 2") else None)
+    with pytest.raises(Cancelled):
+        bake(lamp_box(48), preset("FINAL", threads=2, **FINAL), progress)
+    assert not _beside_threads()
+
+
+def test_the_texels_stage_beside_the_direct_light_computes_and_counts_what_it_does_in_line():
+    """The first target's texels' stage starts while the direct light may still run on its thread; both
+    test samples on touching faces (deviation: contact-faces), each on a view of the tests of its own: the
+    same maps and the same count of those tests' rays as a bake with everything in line on one thread."""
+    scene = box_on_ground()
+    two, one = (bake(scene, preset("FINAL", threads=threads, **FINAL)) for threads in (2, 1))
+    assert two.stats["seconds_beside"] == ["direct"]
+    for name in one.direct:
+        assert np.array_equal(two.direct[name], one.direct[name]), name
+        assert np.array_equal(two.indirect[name], one.indirect[name]), name
+    a, b = two.stats["counters"], one.stats["counters"]
+    assert a["contact_rays"] == b["contact_rays"] > a["texel_samples_in_contact"] > 0
+
+
+def test_a_cancel_during_the_texels_stage_stops_the_direct_light_beside_it():
+    progress = Progress(lambda stage, fraction, eta: progress.cancel() if stage.startswith("Texel validity")
+                        or stage.startswith("Interpolating") else None)
     with pytest.raises(Cancelled):
         bake(lamp_box(48), preset("FINAL", threads=2, **FINAL), progress)
     assert not _beside_threads()
