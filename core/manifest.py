@@ -43,8 +43,8 @@ Schema (``schema_version`` 1)
 ``stats`` : dict
     :meth:`core.stats.BakeStats.as_dict` plus the add-on's own stages:
     ``seconds`` (dict stage -> wall seconds, float; with indirect light on more than one thread the
-    ``direct`` stage runs on a thread of its own beside passes 2-3, and ``direct_wait`` is the time
-    the bake then waited for it, if any), ``seconds_beside`` (list of the stages that ran beside
+    ``direct`` stage runs on a thread of its own beside passes 2-3 and the first target's texels' stage,
+    and ``direct_wait`` is the time the bake then waited for it, if any), ``seconds_beside`` (list of the stages that ran beside
     others, absent when none did), ``seconds_total`` (float, s: the stages' sum, those beside left out),
     ``counters`` (dict name -> int or float: photons, records, rays cast/saved,
     texels, ...). Keys sorted. For every stage that cast rays, ``embree_seconds_<stage>``
