@@ -83,7 +83,7 @@ def stats_rows(stats: dict) -> list[tuple[str, str]]:
     """
     rows: list[tuple[str, str]] = []
     seconds = stats.get("seconds", {})
-    beside = stats.get("seconds_beside", [])  # ran beside other stages (the direct light beside passes 2-3 and the texels)
+    beside = stats.get("seconds_beside", [])  # ran beside other stages (the direct light beside passes 2-3)
     known = {k for k, _ in STAGE_LABELS}
     for key, label in STAGE_LABELS:
         if key in seconds:

@@ -131,8 +131,6 @@ def quad_scene(faces, targets: dict, lights, albedo: float = 0.7, emission=None,
 
 def lit(tris: np.ndarray, *lights, world=None) -> Scene:
     """Triangles (T, 3, 3) in scene-local space, one grey default material, the given lights/world."""
-    from pdic.core.scene import World
-
     return Scene(geometry(tris), Materials.default(1), lights=lights, world=world or World())
 
 

@@ -9,7 +9,6 @@ import numpy as np
 from pdic.core.contact import ContactFaces, touching_planes
 from pdic.core.pipeline import bake
 from pdic.core.rays import RayCaster
-from pdic.core.scene import World
 from pdic.core.settings import Deviations, preset
 
 from scenes import box_on_ground, quad, quad_scene
