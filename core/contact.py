@@ -66,8 +66,10 @@ class ContactFaces:
         return view
 
     def absorb(self, view: "ContactFaces") -> None:
-        """Count the rays a :meth:`view` of these tests cast as these tests' own."""
-        self.solid_rays += view.rays_cast
+        """Count the rays a :meth:`view` of these tests cast as these tests' own, each where it belongs."""
+        self.solid_rays += view.solid_rays
+        for s, (_, caster) in view._casters.items():
+            self._casters[s][1].rays_cast += caster.rays_cast
 
     @property
     def any(self) -> bool:
