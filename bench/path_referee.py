@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/path_referee.py --scene occluded [--texels 160] [--paths 4000]
     .venv/bin/python bench/path_referee.py --scene occluded --point=4.62,-0.08,0.1995/0,0,-1
+    .venv/bin/python bench/path_referee.py --scene sponza_held --worst 100 --paths 64 [--seed 1] [--tag _b52]
 
 When PDIC and a Cycles bake disagree, this says which one to believe. It shares only the scene
 description and the ray caster with PDIC: no photons, no cache. Each path leaves the texel
@@ -15,6 +16,8 @@ irradiance E / pi, the light-map convention.
 interior texels (``bench.run.interior_texels``: all 2x2 samples on the mesh), the Cycles pair
 and a PDIC Final bake with the path-traced value of each texel (the mean over its samples, as
 PDIC defines a texel). ``--point`` (repeatable) prints the path-traced value at a point instead.
+``--worst N`` traces the N texels holding most of a Final bake's squared difference from the pair over
+the footprint Cycles integrates (:func:`audit_worst`) and says which baker each sides with.
 """
 from __future__ import annotations
 
@@ -130,6 +133,132 @@ def referee_texels(name: str, texels: int, paths: int, seed: int = 11) -> dict:
     return {k: np.asarray(v) for k, v in rows.items()}
 
 
+WORST_POINTS_PER_AXIS = 8
+"""Jittered points per texel axis over a Cycles footprint (:func:`cycles_footprint`)."""
+
+
+def cycles_footprint(scene, target_index: int, texels: np.ndarray, centre_triangle: np.ndarray, per_axis: int,
+                     rng: np.random.Generator, blender_52: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(texel (s,), p (s, 3), n (s, 3) shading normals): stratified jittered points over the footprints of
+    ``texels`` (flat indices of target ``target_index``) as Cycles' bake integrates them.
+
+    Blender 5.0 and 5.1 jitter over the centred half-texel square and fold every point into the triangle
+    under the texel's centre (``centre_triangle``, the target's :attr:`core.texels.TargetRaster.centre_triangle`,
+    indexing its triangles of nonzero area), mirrored as ``bake_clamp_mirror_repeat`` does
+    (:func:`core.raster.fold_into`): all of them lie on that triangle. Blender 5.2 jitters over the whole
+    texel and keeps the points that land on the chart (:func:`core.texels.footprint_texel_points`)."""
+    from pdic.core.raster import fold_into
+    from pdic.core.texels import footprint_texel_points
+
+    target = scene.targets[target_index]
+    if blender_52:
+        fp = footprint_texel_points(scene, target_index, texels, per_axis, rng, 1.0)
+        return fp.texel, fp.p, fp.n_shading
+    g = scene.geometry
+    local = np.flatnonzero(g.areas()[target.triangles] > 0)
+    m = per_axis
+    strata = np.stack(np.meshgrid(np.arange(m), np.arange(m), indexing="xy"), axis=-1).reshape(-1, 2)
+    corner = np.stack([texels % target.width, texels // target.width], axis=1) + 0.25
+    pts = corner[:, None, :] + 0.5 * (strata[None] + rng.random((len(texels), m * m, 2))) / m
+    texel = np.repeat(texels, m * m)
+    centre = centre_triangle.reshape(-1)[texel]
+    uv = target.lightmap_uv[local].astype(np.float64) * [target.width, target.height]
+    b = fold_into(uv[centre], pts[..., 0].ravel(), pts[..., 1].ravel())
+    tri = target.triangles[local[centre]]
+    p = np.einsum("sk,skj->sj", b, g.positions[tri])
+    n = np.einsum("sk,skj->sj", b, g.normals[tri].astype(np.float64))
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    return texel, p, n
+
+
+def audit_worst(name: str, worst: int, paths: int, tag: str = "", seed: int = 0, per_axis: int =
+                WORST_POINTS_PER_AXIS) -> dict:
+    """The ``worst`` texels of a PDIC Final bake (seed ``seed``) holding most of its squared error against a
+    converged scene's Cycles pair (noise subtracted), path-traced over their Cycles footprints
+    (:func:`cycles_footprint`, ``paths`` paths per point): which baker each texel's truth sides with,
+    and the map's error with the path-traced values in place of the pair's at those texels."""
+    from bench import convergence
+    from bench.run import noise_corrected_error
+    from pdic.core import texels as texel_stage
+    from pdic.core.pipeline import bake
+    from pdic.core.rays import RayCaster
+    from pdic.core.settings import preset
+
+    scene, pair, _ = convergence.load(name, tag)
+    blender_52 = tag == "_b52"
+    settings = preset("FINAL", seed=seed)
+    if blender_52:
+        settings = replace(settings, deviations=replace(settings.deviations, edge_folding=False),
+                           direct_footprint_side=1.0)
+    pdic = bake(scene, settings)
+    rows = []
+    for index, target in enumerate(scene.targets):
+        n_t = target.name
+        a, b = pair[0]["images"][n_t], pair[1]["images"][n_t]
+        mask = pair[0]["coverage"][n_t] & pair[1]["coverage"][n_t] & pdic.centre_inside[n_t]
+        share = np.where(mask, (((pdic.indirect[n_t] - 0.5 * (a + b)) ** 2) - (a - b) ** 2 / 4).mean(axis=2), 0.0)
+        for texel in np.argsort(share.ravel())[::-1][:worst]:
+            rows.append((float(share.ravel()[texel]), index, int(texel)))
+    rows = sorted(rows, reverse=True)[:worst]
+    caster = RayCaster(scene.geometry.positions)
+    rng = np.random.default_rng(seed + 11)
+    found = {"texel": [], "target": [], "pdic": [], "cycles_a": [], "cycles_b": [], "pt": [], "pt_se": []}
+    for index, target in enumerate(scene.targets):
+        chosen = np.array([t for _, i, t in rows if i == index], np.int64)
+        if len(chosen) == 0:
+            continue
+        raster = texel_stage.lift_texels(replace(scene, targets=(target,)), 2)[1][0]
+        texel, p, n = cycles_footprint(scene, index, chosen, raster.centre_triangle, per_axis, rng, blender_52)
+        mean, se = mean_indirect(scene, caster, p, n, paths, rng)
+        for t in chosen:
+            at = texel == t
+            y, x = divmod(int(t), target.width)
+            found["texel"].append((y, x))
+            found["target"].append(target.name)
+            found["pt"].append(mean[at].mean(axis=0))
+            found["pt_se"].append(float(np.sqrt(np.mean(se[at] ** 2) / max(at.sum(), 1))))
+            found["pdic"].append(pdic.indirect[target.name][y, x])
+            found["cycles_a"].append(pair[0]["images"][target.name][y, x])
+            found["cycles_b"].append(pair[1]["images"][target.name][y, x])
+    out = {k: np.asarray(v) for k, v in found.items() if k != "target"}
+    out["target"] = found["target"]
+    out["error"] = noise_corrected_error(pdic.indirect, pdic.centre_inside, pair)
+    out["error_refereed"] = refereed_error(pdic, pair, out)
+    return out
+
+
+def refereed_error(pdic, pair, audit: dict) -> float:
+    """:func:`bench.run.noise_corrected_error` of ``pdic``'s indirect light with the audited texels' truth
+    taken from path tracing (its variance subtracted) instead of the Cycles pair."""
+    sq, count, total = 0.0, 0, 0.0
+    for n_t in pdic.indirect:
+        a, b = pair[0]["images"][n_t], pair[1]["images"][n_t]
+        mask = pair[0]["coverage"][n_t] & pair[1]["coverage"][n_t] & pdic.centre_inside[n_t]
+        ref = 0.5 * (a + b)
+        excess = (((pdic.indirect[n_t] - ref) ** 2) - (a - b) ** 2 / 4).mean(axis=2)
+        truth = ref.mean(axis=2).copy()
+        for (y, x), target, pt, se in zip(audit["texel"], audit["target"], audit["pt"], audit["pt_se"]):
+            if target == n_t and mask[y, x]:
+                excess[y, x] = float(((pdic.indirect[n_t][y, x] - pt) ** 2).mean()) - se ** 2
+                truth[y, x] = float(pt.mean())
+        sq, count, total = sq + excess[mask].sum(), count + int(mask.sum()), total + truth[mask].sum()
+    return float(np.sqrt(max(sq / max(count, 1), 0.0)) / max(total / max(count, 1), 1e-30))
+
+
+def print_audit(scene: str, audit: dict) -> None:
+    """:func:`audit_worst`'s table (E/pi over the pair's mean at the texels, luminance) and verdict."""
+    pt, se = audit["pt"].mean(axis=1), audit["pt_se"]
+    pdic, cycles = audit["pdic"].mean(axis=1), 0.5 * (audit["cycles_a"] + audit["cycles_b"]).mean(axis=1)
+    nearer = np.abs(pdic - pt) < np.abs(cycles - pt)
+    print(f"{scene}: the {len(pt)} texels holding most of PDIC's squared error (y, x: PDIC / Cycles pair / "
+          f"path-traced over Cycles' footprint +- its standard error)")
+    for (y, x), p, c, t, s in zip(audit["texel"], pdic, cycles, pt, se):
+        print(f"  {y:5d} {x:5d}  {p:8.4f} {c:8.4f} {t:8.4f} +- {s:.4f}  {'PDIC' if abs(p - t) < abs(c - t) else 'Cycles'}")
+    print(f"  nearer to path tracing: PDIC at {int(nearer.sum())}, Cycles at {int((~nearer).sum())}")
+    print(f"  error against the pair {audit['error']:.2%}; with the path-traced truth at these texels "
+          f"{audit['error_refereed']:.2%}")
+
+
 def agreement(test: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     """(relative RMS difference, mean bias) of ``test`` against ``truth`` (texels x 3)."""
     return (float(np.sqrt(np.mean((test - truth) ** 2)) / max(truth.mean(), 1e-30)),
@@ -141,6 +270,10 @@ def main(argv=None):
     ap.add_argument("--scene", default="occluded", help="a converged-bench scene: cornell, occluded, sponza")
     ap.add_argument("--texels", type=int, default=160)
     ap.add_argument("--paths", type=int, default=4000, help="paths per texel (or per point)")
+    ap.add_argument("--worst", type=int, default=0, help="audit the N texels holding most of a Final bake's "
+                    "squared error against the scene's Cycles pair instead (paths per footprint point)")
+    ap.add_argument("--tag", default="", help="the references' tag (bench/convergence.py --tag), e.g. _b52")
+    ap.add_argument("--seed", type=int, default=0, help="the audited PDIC bake's seed")
     ap.add_argument("--point", action="append", help="x,y,z/nx,ny,nz in the scene's local space (write "
                     "--point=... when it starts with a minus)")
     args = ap.parse_args(argv)
@@ -157,6 +290,9 @@ def main(argv=None):
             mean, se = mean_indirect(scene, caster, np.array(p), np.array(n) / np.linalg.norm(n), args.paths,
                                      np.random.default_rng(7))
             print(f"{spec}: E/pi {np.round(mean[0], 4)} (+- {se[0]:.4f})")
+        return
+    if args.worst:
+        print_audit(args.scene, audit_worst(args.scene, args.worst, args.paths, args.tag, args.seed))
         return
     r = referee_texels(args.scene, args.texels, args.paths)
     noise_pt = float(np.sqrt(np.mean(r["pt_se"] ** 2)) / r["pt"].mean())
