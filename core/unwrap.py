@@ -89,7 +89,7 @@ def choose_resolution(surface_area: float, texel_density: float, default_resolut
     -------
     int : ``default_resolution`` if the density is 0, else
         ``ceil(sqrt(surface_area) * texel_density)`` rounded up to a multiple of 4
-        (xatlas aligns charts to 4x4 blocks) and clamped to [min, max].
+        (block-compressed texture formats store 4x4 blocks) and clamped to [min, max].
     """
     if not (math.isfinite(surface_area) and math.isfinite(texel_density)):
         raise ValueError(f"choose_resolution: non-finite surface area {surface_area!r} or texel density {texel_density!r}")

@@ -75,7 +75,8 @@ def triangle_densities(result, positions, triangles):
 
 def test_a_texel_density_is_held_by_growing_the_map():
     """Sized from the surface area alone, the map cannot hold many small charts with their gutters:
-    fitted into it, every chart is scaled down and the floor gets a fraction of the density asked.
+    fitted into it, every chart is scaled down and the floor gets less than the density asked (15 of
+    16 texels per unit; 3.2 with charts aligned to 4x4 blocks, as xatlas packed them before).
     With ``texels_per_unit`` the map grows until the charts fit at the density, up to the largest
     allowed map."""
     p, t = floor_with_posts()
@@ -85,14 +86,14 @@ def test_a_texel_density_is_held_by_growing_the_map():
     res = choose_resolution(area, density, 256, 16, 4096)
     fitted = unwrap(p, t, res, 2, max_resolution=4096)
     assert fitted.resolution == res
-    assert triangle_densities(fitted, p, t)[:2].max() < 0.6 * density  # the floor, scaled down
+    assert triangle_densities(fitted, p, t)[:2].max() < 0.97 * density  # the floor, scaled down
     held = unwrap(p, t, res, 2, max_resolution=4096, texels_per_unit=density)
     assert held.resolution > res and held.resolution % 4 == 0
     assert triangle_densities(held, p, t).min() >= 0.99 * density
     assert not overlapping(held.uv, held.resolution, held.resolution).any()
     capped = unwrap(p, t, res, 2, max_resolution=res, texels_per_unit=density)
     assert capped.resolution == res  # no larger map allowed: fitted as without a density
-    assert triangle_densities(capped, p, t)[:2].max() < 0.6 * density
+    assert triangle_densities(capped, p, t)[:2].max() < 0.97 * density
     with pytest.raises(ValueError, match="texels per unit"):
         unwrap(p, t, res, 2, texels_per_unit=float("nan"))
 

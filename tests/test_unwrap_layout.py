@@ -109,10 +109,10 @@ def test_small_map_grows_to_the_smallest_that_packs_and_says_so():
                                            ((0, 0, 0), (0, 0, 1), (1, 0, 0)), ((0, 1, 0), (1, 0, 0), (0, 0, 1)),
                                            ((0, 0, 0), (0, 1, 0), (0, 0, 1)), ((1, 0, 0), (0, 0, 1), (0, 1, 0))]]
     p, t = merge(*cube)
-    with pytest.raises(PackError, match="16x16"):
-        unwrap(p, t, 16, 2)  # six 4x4-aligned charts with padding need more than 16^2
-    r = unwrap(p, t, 16, 2, max_resolution=4096)
-    assert r.resolution == 20  # 16 grown by 25 %, a multiple of 4: the first size that packs
+    with pytest.raises(PackError, match="12x12"):
+        unwrap(p, t, 12, 2)  # six charts with their padding need more than 12^2
+    r = unwrap(p, t, 12, 2, max_resolution=4096)
+    assert r.resolution == 16  # 12 grown by 25 %, a multiple of 4: the first size that packs
     assert uv_overlaps(r.uv, None, r.resolution, r.resolution, 4) == 0
     with pytest.raises(PackError, match="largest allowed map is 12x12"):
         unwrap(p, t, 8, 2, max_resolution=12)
