@@ -252,8 +252,8 @@ def print_audit(scene: str, audit: dict) -> None:
     nearer = np.abs(pdic - pt) < np.abs(cycles - pt)
     print(f"{scene}: the {len(pt)} texels holding most of PDIC's squared error (y, x: PDIC / Cycles pair / "
           f"path-traced over Cycles' footprint +- its standard error)")
-    for (y, x), p, c, t, s in zip(audit["texel"], pdic, cycles, pt, se):
-        print(f"  {y:5d} {x:5d}  {p:8.4f} {c:8.4f} {t:8.4f} +- {s:.4f}  {'PDIC' if abs(p - t) < abs(c - t) else 'Cycles'}")
+    for (y, x), p, c, t, s, mine in zip(audit["texel"], pdic, cycles, pt, se, nearer):
+        print(f"  {y:5d} {x:5d}  {p:8.4f} {c:8.4f} {t:8.4f} +- {s:.4f}  {'PDIC' if mine else 'Cycles'}")
     print(f"  nearer to path tracing: PDIC at {int(nearer.sum())}, Cycles at {int((~nearer).sum())}")
     print(f"  error against the pair {audit['error']:.2%}; with the path-traced truth at these texels "
           f"{audit['error_refereed']:.2%}")

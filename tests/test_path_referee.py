@@ -35,7 +35,8 @@ def test_path_traced_indirect_light_of_a_closed_box_balances_the_lamp_power():
 def _plane(resolution: int = 8):
     """A 1 x 1 m floor, its own light-map target, under a lamp."""
     faces = [quad([0, 0, 0], [1, 0, 0], [0, 1, 0])]
-    return quad_scene(faces, {"floor": (0, resolution)}, (PointLight("lamp", np.array([0.5, 0.5, 1.0]), np.full(3, 10.0)),))
+    lamp = PointLight("lamp", np.array([0.5, 0.5, 1.0]), np.full(3, 10.0))
+    return quad_scene(faces, {"floor": (0, resolution)}, (lamp,))
 
 
 def test_cycles_footprint_of_blender_5_0_folds_the_half_texel_onto_the_centre_triangle():
@@ -61,6 +62,8 @@ def test_cycles_footprint_of_blender_5_0_folds_the_half_texel_onto_the_centre_tr
 
 
 def test_cycles_footprint_of_blender_5_2_spans_the_whole_texel_on_the_chart():
+    """Blender 5.2's bake integrates the whole texel, on the chart only: the points spread over more than half
+    a texel each way and none leaves the texel."""
     from pdic.core.texels import lift_texels
 
     scene = _plane()
