@@ -3,6 +3,7 @@
     .venv/bin/python bench/path_referee.py --scene occluded [--texels 160] [--paths 4000]
     .venv/bin/python bench/path_referee.py --scene occluded --point=4.62,-0.08,0.1995/0,0,-1
     .venv/bin/python bench/path_referee.py --scene sponza_held --worst 100 --paths 64 [--seed 1] [--tag _b52]
+    .venv/bin/python bench/path_referee.py --scene sponza_held --blocks --paths 64
 
 When PDIC and a Cycles bake disagree, this says which one to believe. It shares only the scene
 description and the ray caster with PDIC: no photons, no cache. Each path leaves the texel
@@ -17,7 +18,8 @@ interior texels (``bench.run.interior_texels``: all 2x2 samples on the mesh), th
 and a PDIC Final bake with the path-traced value of each texel (the mean over its samples, as
 PDIC defines a texel). ``--point`` (repeatable) prints the path-traced value at a point instead.
 ``--worst N`` traces the N texels holding most of a Final bake's squared difference from the pair over
-the footprint Cycles integrates (:func:`audit_worst`) and says which baker each sides with.
+the footprint Cycles integrates (:func:`audit_worst`) and says which baker each sides with; ``--blocks``
+does so for the 8x8 blocks off from the pair by more than 20 % (:func:`audit_blocks`).
 """
 from __future__ import annotations
 
@@ -171,17 +173,11 @@ def cycles_footprint(scene, target_index: int, texels: np.ndarray, centre_triang
     return texel, p, n
 
 
-def audit_worst(name: str, worst: int, paths: int, tag: str = "", seed: int = 0, per_axis: int =
-                WORST_POINTS_PER_AXIS) -> dict:
-    """The ``worst`` texels of a PDIC Final bake (seed ``seed``) holding most of its squared error against a
-    converged scene's Cycles pair (noise subtracted), path-traced over their Cycles footprints
-    (:func:`cycles_footprint`, ``paths`` paths per point): which baker each texel's truth sides with,
-    and the map's error with the path-traced values in place of the pair's at those texels."""
+def _audited_bake(name: str, tag: str, seed: int):
+    """(core scene, Cycles pair, PDIC Final bake, whether the pair is Blender 5.2's) of a converged scene; the
+    bake takes the footprint and edge folding the add-on sets for that Blender."""
     from bench import convergence
-    from bench.run import noise_corrected_error
-    from pdic.core import texels as texel_stage
     from pdic.core.pipeline import bake
-    from pdic.core.rays import RayCaster
     from pdic.core.settings import preset
 
     scene, pair, _ = convergence.load(name, tag)
@@ -190,7 +186,20 @@ def audit_worst(name: str, worst: int, paths: int, tag: str = "", seed: int = 0,
     if blender_52:
         settings = replace(settings, deviations=replace(settings.deviations, edge_folding=False),
                            direct_footprint_side=1.0)
-    pdic = bake(scene, settings)
+    return scene, pair, bake(scene, settings), blender_52
+
+
+def audit_worst(name: str, worst: int, paths: int, tag: str = "", seed: int = 0, per_axis: int =
+                WORST_POINTS_PER_AXIS) -> dict:
+    """The ``worst`` texels of a PDIC Final bake (seed ``seed``) holding most of its squared error against a
+    converged scene's Cycles pair (noise subtracted), path-traced over their Cycles footprints
+    (:func:`cycles_footprint`, ``paths`` paths per point): which baker each texel's truth sides with,
+    and the map's error with the path-traced values in place of the pair's at those texels."""
+    from bench.run import noise_corrected_error
+    from pdic.core import texels as texel_stage
+    from pdic.core.rays import RayCaster
+
+    scene, pair, pdic, blender_52 = _audited_bake(name, tag, seed)
     rows = []
     for index, target in enumerate(scene.targets):
         n_t = target.name
@@ -227,6 +236,55 @@ def audit_worst(name: str, worst: int, paths: int, tag: str = "", seed: int = 0,
     return out
 
 
+BLOCK_POINTS_PER_AXIS = 4
+"""Jittered points per texel axis over a Cycles footprint in :func:`audit_blocks` (a block's mean averages
+its texels' noise)."""
+
+
+def audit_blocks(name: str, paths: int, tag: str = "", seed: int = 0, per_axis: int = BLOCK_POINTS_PER_AXIS
+                 ) -> dict:
+    """The 8x8 blocks of a PDIC Final bake (seed ``seed``) off from a converged scene's Cycles pair by more
+    than BLOCK_OFF over the texels not buried (``bench.convergence``'s ``blocks_judged_off_outside``), every
+    texel of them path-traced over its Cycles footprint (:func:`cycles_footprint`, ``paths`` paths per
+    point): how many are off from the traced truth for PDIC and for the pair.
+    Returns {"blocks": [(target, by, bx, PDIC, pair, traced, its standard error)], "judged": blocks judged}."""
+    from pdic.bench.competitors import BLOCK, BLOCK_OFF, block_differences
+    from pdic.core import texels as texel_stage
+    from pdic.core.rays import RayCaster
+
+    scene, pair, pdic, blender_52 = _audited_bake(name, tag, seed)
+    caster = RayCaster(scene.geometry.positions)
+    rng = np.random.default_rng(seed + 13)
+    rows, judged_all = [], 0
+    for index, target in enumerate(scene.targets):
+        n_t = target.name
+        a, b = pair[0]["images"][n_t], pair[1]["images"][n_t]
+        mask = pair[0]["coverage"][n_t] & pair[1]["coverage"][n_t] & pdic.centre_inside[n_t] & ~pdic.buried[n_t]
+        rel, judged, mine, theirs = block_differences(pdic.indirect[n_t], 0.5 * (a + b), mask)
+        judged_all += int(judged.sum())
+        off = np.argwhere(judged & (rel > BLOCK_OFF))
+        if len(off) == 0:
+            continue
+        cells = np.zeros(mask.shape, bool)
+        for by, bx in off:
+            cells[by * BLOCK:(by + 1) * BLOCK, bx * BLOCK:(bx + 1) * BLOCK] = True
+        texels = np.flatnonzero((cells & mask).ravel())
+        raster = texel_stage.lift_texels(replace(scene, targets=(target,)), 2)[1][0]
+        texel, p, n = cycles_footprint(scene, index, texels, raster.centre_triangle, per_axis, rng, blender_52)
+        mean, se = mean_indirect(scene, caster, p, n, paths, rng)
+        slot = np.searchsorted(texels, texel)
+        traced = np.bincount(slot, weights=mean.mean(axis=1), minlength=len(texels)) / np.maximum(
+            np.bincount(slot, minlength=len(texels)), 1)
+        variance = np.bincount(slot, weights=se ** 2, minlength=len(texels)) / np.maximum(
+            np.bincount(slot, minlength=len(texels)), 1) ** 2
+        y, x = np.divmod(texels, target.width)
+        for by, bx in off:
+            inside = (y // BLOCK == by) & (x // BLOCK == bx)
+            rows.append((n_t, int(by), int(bx), float(mine[by, bx]), float(theirs[by, bx]),
+                         float(traced[inside].mean()), float(np.sqrt(variance[inside].sum()) / inside.sum())))
+    return {"blocks": rows, "judged": judged_all}
+
+
 def refereed_error(pdic, pair, audit: dict) -> float:
     """:func:`bench.run.noise_corrected_error` of ``pdic``'s indirect light with the audited texels' truth
     taken from path tracing (its variance subtracted) instead of the Cycles pair."""
@@ -259,6 +317,22 @@ def print_audit(scene: str, audit: dict) -> None:
           f"{audit['error_refereed']:.2%}")
 
 
+def print_block_audit(scene: str, audit: dict) -> None:
+    """:func:`audit_blocks`' table (block means, E/pi luminance) and counts."""
+    from pdic.bench.competitors import BLOCK_OFF
+
+    rows = audit["blocks"]
+    print(f"{scene}: {len(rows)} of {audit['judged']} 8x8 blocks (texels not buried) off from the Cycles pair by more "
+          f"than {BLOCK_OFF:.0%} (block, PDIC / pair / path-traced over Cycles' footprints +- its error)")
+    pdic_off = cycles_off = 0
+    for target, by, bx, mine, theirs, traced, se in rows:
+        p_off, c_off = abs(mine / traced - 1) > BLOCK_OFF, abs(theirs / traced - 1) > BLOCK_OFF
+        pdic_off, cycles_off = pdic_off + p_off, cycles_off + c_off
+        print(f"  {target} {by:4d} {bx:4d}  {mine:8.4f} {theirs:8.4f} {traced:8.4f} +- {se:.4f}  "
+              f"{'PDIC off ' if p_off else ''}{'pair off' if c_off else ''}")
+    print(f"  off from the trace by more than {BLOCK_OFF:.0%}: PDIC {pdic_off}, the pair {cycles_off}")
+
+
 def agreement(test: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     """(relative RMS difference, mean bias) of ``test`` against ``truth`` (texels x 3)."""
     return (float(np.sqrt(np.mean((test - truth) ** 2)) / max(truth.mean(), 1e-30)),
@@ -272,6 +346,8 @@ def main(argv=None):
     ap.add_argument("--paths", type=int, default=4000, help="paths per texel (or per point)")
     ap.add_argument("--worst", type=int, default=0, help="audit the N texels holding most of a Final bake's "
                     "squared error against the scene's Cycles pair instead (paths per footprint point)")
+    ap.add_argument("--blocks", action="store_true", help="trace the 8x8 blocks a Final bake has off from the "
+                    "scene's Cycles pair by more than 20 %% instead (paths per footprint point)")
     ap.add_argument("--tag", default="", help="the references' tag (bench/convergence.py --tag), e.g. _b52")
     ap.add_argument("--seed", type=int, default=0, help="the audited PDIC bake's seed")
     ap.add_argument("--point", action="append", help="x,y,z/nx,ny,nz in the scene's local space (write "
@@ -293,6 +369,9 @@ def main(argv=None):
         return
     if args.worst:
         print_audit(args.scene, audit_worst(args.scene, args.worst, args.paths, args.tag, args.seed))
+        return
+    if args.blocks:
+        print_block_audit(args.scene, audit_blocks(args.scene, args.paths, args.tag, args.seed))
         return
     r = referee_texels(args.scene, args.texels, args.paths)
     noise_pt = float(np.sqrt(np.mean(r["pt_se"] ** 2)) / r["pt"].mean())

@@ -101,3 +101,13 @@ def test_refereed_error_replaces_the_pair_at_the_audited_texels_only():
     expected = np.sqrt(excess.mean()) / truth.mean()
     assert path_referee.refereed_error(pdic, pair, audit) == pytest.approx(expected, rel=1e-12)
     assert expected < 0.5 * noise_corrected_error(pdic.indirect, pdic.centre_inside, pair)
+
+
+def test_block_audit_counts_the_blocks_off_from_the_trace_for_each_baker(capsys):
+    """A block is off for a baker when its mean is more than 20 % from the traced one."""
+    blocks = [("t", 1, 2, 0.50, 0.30, 0.40, 0.01),  # PDIC 1.25x, the pair 0.75x: both off
+              ("t", 3, 4, 1.15, 0.70, 1.00, 0.02),  # the pair alone
+              ("t", 5, 6, 0.90, 1.10, 1.00, 0.02)]  # neither
+    path_referee.print_block_audit("scene", {"blocks": blocks, "judged": 40})
+    out = capsys.readouterr().out
+    assert "3 of 40" in out and out.strip().endswith("PDIC 1, the pair 2")
