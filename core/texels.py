@@ -153,10 +153,13 @@ def lift_texels(scene: Scene, samples_per_axis: int, map=map, crease_folding: bo
             tri_local, b, folded = fold_across_creases(samples.texel, tri_local, b, centre, uv,
                                                        face_n[target.triangles[local]], target.width, target.height)
         tri = target.triangles[local[tri_local]]
-        chunks = slices(len(tri), LIFT_CHUNK) or [slice(0, 0)]
-        lifted = list(map(lambda s: _on_surface(geometry, face_n, tri[s], b[s]), chunks))
-        p, n_s, n_g = (np.concatenate(column) for column in zip(*lifted)) if len(lifted) > 1 else lifted[0]
         count = len(tri)
+        p, n_s, n_g = (np.empty((count, 3)) for _ in range(3))
+
+        def lift(s: slice) -> None:  # each chunk fills its rows: no serial join of 11 M rows (Sponza 2048^2)
+            p[s], n_s[s], n_g[s] = _on_surface(geometry, face_n, tri[s], b[s])
+
+        list(map(lift, slices(count, LIFT_CHUNK)))
         parts.append((p, n_s, n_g, tri, b[:, 1:3].copy(), np.full(count, len(rasters), np.int32),
                       samples.texel, samples.weight))
         rasters.append(TargetRaster(target.width, target.height, samples.coverage, samples.centre_inside,
