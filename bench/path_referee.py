@@ -139,25 +139,26 @@ WORST_POINTS_PER_AXIS = 8
 """Jittered points per texel axis over a Cycles footprint (:func:`cycles_footprint`)."""
 
 
-def cycles_footprint(scene, target_index: int, texels: np.ndarray, centre_triangle: np.ndarray, per_axis: int,
-                     rng: np.random.Generator, blender_52: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def cycles_footprint(scene, target_index: int, texels: np.ndarray, per_axis: int, rng: np.random.Generator,
+                     blender_52: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(texel (s,), p (s, 3), n (s, 3) shading normals): stratified jittered points over the footprints of
     ``texels`` (flat indices of target ``target_index``) as Cycles' bake integrates them.
 
     Blender 5.0 and 5.1 jitter over the centred half-texel square and fold every point into the triangle
-    under the texel's centre (``centre_triangle``, the target's :attr:`core.texels.TargetRaster.centre_triangle`,
-    indexing its triangles of nonzero area), mirrored as ``bake_clamp_mirror_repeat`` does
-    (:func:`core.raster.fold_into`): all of them lie on that triangle. Blender 5.2 jitters over the whole
-    texel and keeps the points that land on the chart (:func:`core.texels.footprint_texel_points`)."""
-    from pdic.core.raster import fold_into
-    from pdic.core.texels import footprint_texel_points
+    under the texel's centre (:attr:`core.raster.TexelSamples.centre_triangle`), mirrored as
+    ``bake_clamp_mirror_repeat`` does (:func:`core.raster.fold_into`): all of them lie on that triangle.
+    Blender 5.2 jitters over the whole texel and keeps the points that land on the chart
+    (:func:`core.texels.footprint_texel_points`)."""
+    from pdic.core.raster import fold_into, rasterize
+    from pdic.core.texels import footprint_texel_points, on_surface
 
     target = scene.targets[target_index]
     if blender_52:
         fp = footprint_texel_points(scene, target_index, texels, per_axis, rng, 1.0)
         return fp.texel, fp.p, fp.n_shading
     g = scene.geometry
-    local = np.flatnonzero(g.areas()[target.triangles] > 0)
+    local = np.flatnonzero(g.areas()[target.triangles] > 0)  # the triangles the light map's raster holds
+    centre_triangle = rasterize(target.lightmap_uv[local], target.width, target.height, 1).centre_triangle
     m = per_axis
     strata = np.stack(np.meshgrid(np.arange(m), np.arange(m), indexing="xy"), axis=-1).reshape(-1, 2)
     corner = np.stack([texels % target.width, texels // target.width], axis=1) + 0.25
@@ -166,11 +167,28 @@ def cycles_footprint(scene, target_index: int, texels: np.ndarray, centre_triang
     centre = centre_triangle.reshape(-1)[texel]
     uv = target.lightmap_uv[local].astype(np.float64) * [target.width, target.height]
     b = fold_into(uv[centre], pts[..., 0].ravel(), pts[..., 1].ravel())
-    tri = target.triangles[local[centre]]
-    p = np.einsum("sk,skj->sj", b, g.positions[tri])
-    n = np.einsum("sk,skj->sj", b, g.normals[tri].astype(np.float64))
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    p, n, _ = on_surface(g, g.face_normals(), target.triangles[local[centre]], b)
     return texel, p, n
+
+
+def _compared(pdic, pair, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(mask (H, W): texels both Cycles bakes and PDIC's centres cover, the pair's mean (H, W, 3), each
+    texel's squared difference from it less the pair's noise, channels averaged (H, W)) of target ``name``,
+    as :func:`bench.run.noise_corrected_error` weighs them."""
+    a, b = pair[0]["images"][name], pair[1]["images"][name]
+    mask = pair[0]["coverage"][name] & pair[1]["coverage"][name] & pdic.centre_inside[name]
+    ref = 0.5 * (a + b)
+    return mask, ref, (((pdic.indirect[name] - ref) ** 2) - (a - b) ** 2 / 4).mean(axis=2)
+
+
+def _traced_per_texel(texels: np.ndarray, texel: np.ndarray, mean: np.ndarray, se: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """((k, 3) mean, (k,) its standard error) of :func:`mean_indirect`'s values ``mean`` (s, 3), ``se`` (s,)
+    at footprint points of ``texel`` (s,), per texel of ``texels`` (k,) sorted."""
+    slot = np.searchsorted(texels, texel)
+    count = np.maximum(np.bincount(slot, minlength=len(texels)), 1)
+    traced = np.stack([np.bincount(slot, weights=mean[:, c], minlength=len(texels)) for c in range(3)], axis=1)
+    return traced / count[:, None], np.sqrt(np.bincount(slot, weights=se ** 2, minlength=len(texels))) / count
 
 
 def _audited_bake(name: str, tag: str, seed: int):
@@ -196,18 +214,14 @@ def audit_worst(name: str, worst: int, paths: int, tag: str = "", seed: int = 0,
     (:func:`cycles_footprint`, ``paths`` paths per point): which baker each texel's truth sides with,
     and the map's error with the path-traced values in place of the pair's at those texels."""
     from bench.run import noise_corrected_error
-    from pdic.core import texels as texel_stage
     from pdic.core.rays import RayCaster
 
     scene, pair, pdic, blender_52 = _audited_bake(name, tag, seed)
     rows = []
     for index, target in enumerate(scene.targets):
-        n_t = target.name
-        a, b = pair[0]["images"][n_t], pair[1]["images"][n_t]
-        mask = pair[0]["coverage"][n_t] & pair[1]["coverage"][n_t] & pdic.centre_inside[n_t]
-        share = np.where(mask, (((pdic.indirect[n_t] - 0.5 * (a + b)) ** 2) - (a - b) ** 2 / 4).mean(axis=2), 0.0)
-        for texel in np.argsort(share.ravel())[::-1][:worst]:
-            rows.append((float(share.ravel()[texel]), index, int(texel)))
+        mask, _, excess = _compared(pdic, pair, target.name)
+        share = np.where(mask, excess, 0.0).ravel()
+        rows += [(float(share[texel]), index, int(texel)) for texel in np.argsort(share)[::-1][:worst]]
     rows = sorted(rows, reverse=True)[:worst]
     caster = RayCaster(scene.geometry.positions)
     rng = np.random.default_rng(seed + 11)
@@ -216,16 +230,15 @@ def audit_worst(name: str, worst: int, paths: int, tag: str = "", seed: int = 0,
         chosen = np.array([t for _, i, t in rows if i == index], np.int64)
         if len(chosen) == 0:
             continue
-        raster = texel_stage.lift_texels(replace(scene, targets=(target,)), 2)[1][0]
-        texel, p, n = cycles_footprint(scene, index, chosen, raster.centre_triangle, per_axis, rng, blender_52)
-        mean, se = mean_indirect(scene, caster, p, n, paths, rng)
-        for t in chosen:
-            at = texel == t
+        texel, p, n = cycles_footprint(scene, index, chosen, per_axis, rng, blender_52)
+        order = np.argsort(chosen)
+        traced, traced_se = _traced_per_texel(chosen[order], texel, *mean_indirect(scene, caster, p, n, paths, rng))
+        for t, pt, pt_se in zip(chosen, traced[np.argsort(order)], traced_se[np.argsort(order)]):
             y, x = divmod(int(t), target.width)
             found["texel"].append((y, x))
             found["target"].append(target.name)
-            found["pt"].append(mean[at].mean(axis=0))
-            found["pt_se"].append(float(np.sqrt(np.mean(se[at] ** 2) / max(at.sum(), 1))))
+            found["pt"].append(pt)
+            found["pt_se"].append(float(pt_se))
             found["pdic"].append(pdic.indirect[target.name][y, x])
             found["cycles_a"].append(pair[0]["images"][target.name][y, x])
             found["cycles_b"].append(pair[1]["images"][target.name][y, x])
@@ -249,7 +262,6 @@ def audit_blocks(name: str, paths: int, tag: str = "", seed: int = 0, per_axis: 
     point): how many are off from the traced truth for PDIC and for the pair.
     Returns {"blocks": [(target, by, bx, PDIC, pair, traced, its standard error)], "judged": blocks judged}."""
     from pdic.bench.competitors import BLOCK, BLOCK_OFF, block_differences
-    from pdic.core import texels as texel_stage
     from pdic.core.rays import RayCaster
 
     scene, pair, pdic, blender_52 = _audited_bake(name, tag, seed)
@@ -258,9 +270,9 @@ def audit_blocks(name: str, paths: int, tag: str = "", seed: int = 0, per_axis: 
     rows, judged_all = [], 0
     for index, target in enumerate(scene.targets):
         n_t = target.name
-        a, b = pair[0]["images"][n_t], pair[1]["images"][n_t]
-        mask = pair[0]["coverage"][n_t] & pair[1]["coverage"][n_t] & pdic.centre_inside[n_t] & ~pdic.buried[n_t]
-        rel, judged, mine, theirs = block_differences(pdic.indirect[n_t], 0.5 * (a + b), mask)
+        mask, ref, _ = _compared(pdic, pair, n_t)
+        mask &= ~pdic.buried[n_t]
+        rel, judged, mine, theirs = block_differences(pdic.indirect[n_t], ref, mask)
         judged_all += int(judged.sum())
         off = np.argwhere(judged & (rel > BLOCK_OFF))
         if len(off) == 0:
@@ -269,19 +281,14 @@ def audit_blocks(name: str, paths: int, tag: str = "", seed: int = 0, per_axis: 
         for by, bx in off:
             cells[by * BLOCK:(by + 1) * BLOCK, bx * BLOCK:(bx + 1) * BLOCK] = True
         texels = np.flatnonzero((cells & mask).ravel())
-        raster = texel_stage.lift_texels(replace(scene, targets=(target,)), 2)[1][0]
-        texel, p, n = cycles_footprint(scene, index, texels, raster.centre_triangle, per_axis, rng, blender_52)
-        mean, se = mean_indirect(scene, caster, p, n, paths, rng)
-        slot = np.searchsorted(texels, texel)
-        traced = np.bincount(slot, weights=mean.mean(axis=1), minlength=len(texels)) / np.maximum(
-            np.bincount(slot, minlength=len(texels)), 1)
-        variance = np.bincount(slot, weights=se ** 2, minlength=len(texels)) / np.maximum(
-            np.bincount(slot, minlength=len(texels)), 1) ** 2
+        texel, p, n = cycles_footprint(scene, index, texels, per_axis, rng, blender_52)
+        traced, traced_se = _traced_per_texel(texels, texel, *mean_indirect(scene, caster, p, n, paths, rng))
+        traced = traced.mean(axis=1)
         y, x = np.divmod(texels, target.width)
         for by, bx in off:
             inside = (y // BLOCK == by) & (x // BLOCK == bx)
             rows.append((n_t, int(by), int(bx), float(mine[by, bx]), float(theirs[by, bx]),
-                         float(traced[inside].mean()), float(np.sqrt(variance[inside].sum()) / inside.sum())))
+                         float(traced[inside].mean()), float(np.sqrt((traced_se[inside] ** 2).sum()) / inside.sum())))
     return {"blocks": rows, "judged": judged_all}
 
 
@@ -290,11 +297,8 @@ def refereed_error(pdic, pair, audit: dict) -> float:
     taken from path tracing (its variance subtracted) instead of the Cycles pair."""
     sq, count, total = 0.0, 0, 0.0
     for n_t in pdic.indirect:
-        a, b = pair[0]["images"][n_t], pair[1]["images"][n_t]
-        mask = pair[0]["coverage"][n_t] & pair[1]["coverage"][n_t] & pdic.centre_inside[n_t]
-        ref = 0.5 * (a + b)
-        excess = (((pdic.indirect[n_t] - ref) ** 2) - (a - b) ** 2 / 4).mean(axis=2)
-        truth = ref.mean(axis=2).copy()
+        mask, ref, excess = _compared(pdic, pair, n_t)
+        truth = ref.mean(axis=2)
         for (y, x), target, pt, se in zip(audit["texel"], audit["target"], audit["pt"], audit["pt_se"]):
             if target == n_t and mask[y, x]:
                 excess[y, x] = float(((pdic.indirect[n_t][y, x] - pt) ** 2).mean()) - se ** 2

@@ -157,7 +157,7 @@ def lift_texels(scene: Scene, samples_per_axis: int, map=map, crease_folding: bo
         p, n_s, n_g = (np.empty((count, 3)) for _ in range(3))
 
         def lift(s: slice) -> None:  # each chunk fills its rows: no serial join of 11 M rows (Sponza 2048^2)
-            p[s], n_s[s], n_g[s] = _on_surface(geometry, face_n, tri[s], b[s])
+            p[s], n_s[s], n_g[s] = on_surface(geometry, face_n, tri[s], b[s])
 
         list(map(lift, slices(count, LIFT_CHUNK)))
         parts.append((p, n_s, n_g, tri, b[:, 1:3].copy(), np.full(count, len(rasters), np.int32),
@@ -203,14 +203,15 @@ def footprint_texel_points(scene: Scene, target_index: int, texels: np.ndarray, 
         tri_local, b, _ = fold_across_creases(texel, tri_local, b, centre_triangle, uv,
                                               face_n[target.triangles[local]], target.width, target.height)
     tri = target.triangles[local[tri_local]]
-    p, n_s, n_g = _on_surface(geometry, face_n, tri, b)
+    p, n_s, n_g = on_surface(geometry, face_n, tri, b)
     counts = np.bincount(texel, minlength=target.width * target.height)
     weight = (1.0 / np.maximum(counts[texel], 1)).astype(np.float32)
     return TexelPoints(p, n_s, n_g, tri, b[:, 1:3].copy(), np.full(len(tri), target_index, np.int32), texel, weight)
 
 
-def _on_surface(geometry, face_n, tri, b):
-    """Position, shading normal and geometric normal (n, 3) of barycentrics b (n, 3) on triangles tri (n,)."""
+def on_surface(geometry, face_n, tri, b):
+    """Position, shading normal and geometric normal (n, 3) of barycentrics b (n, 3) on triangles tri (n,);
+    face_n : (T, 3) the geometry's :meth:`~core.scene.Geometry.face_normals`."""
     p = _blend(b, np.take(geometry.positions.reshape(-1, 9), tri, axis=0))
     n_s = _blend(b, np.take(geometry.normals.reshape(-1, 9), tri, axis=0).astype(np.float64))
     n_g = np.take(face_n, tri, axis=0)

@@ -43,13 +43,9 @@ def test_cycles_footprint_of_blender_5_0_folds_the_half_texel_onto_the_centre_tr
     """Blender 5.0's bake jitters over the centred half-texel square and mirrors whatever leaves the centre's
     triangle back into it: a texel on the quad's diagonal, whose half-square straddles both triangles, gets
     every point on the one under its centre, and an interior texel's points stay in its half-square."""
-    from pdic.core.texels import lift_texels
-
     scene = _plane()
-    centre_triangle = lift_texels(scene, 2)[1][0].centre_triangle
     texels = np.array([3 * 8 + 3, 3 * 8 + 5])  # (3, 3) on the diagonal, (3, 5) inside triangle 0
-    texel, p, n = path_referee.cycles_footprint(scene, 0, texels, centre_triangle, 4, np.random.default_rng(1),
-                                                blender_52=False)
+    texel, p, n = path_referee.cycles_footprint(scene, 0, texels, 4, np.random.default_rng(1), blender_52=False)
     assert np.bincount(texel, minlength=texels.max() + 1)[texels].tolist() == [16, 16]
     x, y = (p[:, :2] - scene.geometry.positions[:, 0, :2].min(axis=0)).T * 8  # texel units
     diagonal = texel == texels[0]
@@ -64,12 +60,9 @@ def test_cycles_footprint_of_blender_5_0_folds_the_half_texel_onto_the_centre_tr
 def test_cycles_footprint_of_blender_5_2_spans_the_whole_texel_on_the_chart():
     """Blender 5.2's bake integrates the whole texel, on the chart only: the points spread over more than half
     a texel each way and none leaves the texel."""
-    from pdic.core.texels import lift_texels
-
     scene = _plane()
-    centre_triangle = lift_texels(scene, 2)[1][0].centre_triangle
-    texel, p, _ = path_referee.cycles_footprint(scene, 0, np.array([3 * 8 + 5]), centre_triangle, 4,
-                                                np.random.default_rng(1), blender_52=True)
+    texel, p, _ = path_referee.cycles_footprint(scene, 0, np.array([3 * 8 + 5]), 4, np.random.default_rng(1),
+                                                blender_52=True)
     x, y = (p[:, :2] - scene.geometry.positions[:, 0, :2].min(axis=0)).T * 8
     assert len(texel) == 16 and x.max() - x.min() > 0.5 and y.max() - y.min() > 0.5
     assert (np.abs(x - 5.5) <= 0.5).all() and (np.abs(y - 3.5) <= 0.5).all()
