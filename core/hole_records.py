@@ -74,6 +74,7 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
             E[valid] = filled.E[sample_to_point]
             fine = _fine_samples(filled.smallest, sample_to_point, texel_size, settings)
             if len(fine):
+                progress.begin(f"Interpolating the cache at {len(fine):,} texel samples in small zones")
                 E_fine, w_fine = interpolate(filled.cache, params.a, settings.gradients, valid_points.p[fine],
                                              valid_points.n_shading[fine], executor, progress,
                                              caster=_record_visibility(caster, params), sky=sky is not None,
@@ -214,10 +215,12 @@ def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | N
             if len(holes) == 0 and len(thin) == 0:
                 break
         asked = np.concatenate([holes, thin])
+        progress.begin(f"Hole records, round {round_ + 1}: placing records at {len(asked):,} texel samples")
         new, refined = _hole_records(scene, caster, density, sources, cache, points.p[asked], points.n_shading[asked],
                                      params, settings, executor, progress, round_, sky)
         if len(new) == 0:
             break
+        progress.begin(f"Hole records, round {round_ + 1}: interpolating {len(new):,} records at texel samples")
         hole_records += len(new)
         for key, value in refined.items():
             counters[key] = counters.get(key, 0) + value
@@ -250,6 +253,7 @@ def _hole_records(scene, caster, density, sources, cache, cand_p, cand_n, params
                                     existing=cache, caster=caster, estimate=estimate)
     counters = {}
     if settings.refine and len(new):
+        progress.begin(f"Hole records, round {round_ + 1}: gathering at {len(new):,} records")
         new, counters = refine_records(scene, caster, sources, new, zones, settings, params, executor, progress,
                                        stream=STREAM_REFINE_HOLES + round_)
     elif not settings.refine and sky is not None:  # deviation: sky-gathering, docs/DEVIATIONS.md

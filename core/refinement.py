@@ -164,6 +164,8 @@ def refine_records(scene, caster, sources: GatherSources, cache: IrradianceCache
         for s, r in zip(batches, results):
             gathers.add(noisy[s], r, counters)
         counters["refine_extra_gathers"] += len(noisy)
+    if progress is not None and counters["refine_extra_gathers"]:
+        progress.begin(stage)  # what follows (the zones' walls) is the stage's, not the last round's
     refined = cache.take(slice(None))
     E, grad_r, grad_t, R = gathers.means()
     refined.refined[:] = True

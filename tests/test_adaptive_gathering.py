@@ -82,3 +82,17 @@ def test_gathering_noisy_records_again_brings_two_seeds_closer():
         return seed_difference(_indirect(1, adaptive), _indirect(2, adaptive))
 
     assert difference(True) < 0.96 * difference(False)
+
+
+def test_the_stages_a_bake_reports_name_each_round_of_gathering_once():
+    """The progress a user watches: noisy records' later gathers are named after the stage they belong to,
+    and the hole records' rounds after themselves, so labels never pile up one round's name on the last's."""
+    from pdic.core.executor import Progress
+
+    stages = []
+    bake(lamp_box(24), FINAL, Progress(lambda stage, fraction, eta: stages.append(stage)))
+    again = [stage for stage in stages if "gather again" in stage]
+    assert any(stage.startswith("Pass 3: refining records: ") for stage in again)
+    assert any(stage.startswith("Hole records, round 1: gathering at ") for stage in again)
+    assert all(stage.count("gather again") == 1 for stage in again), sorted(set(again))
+    assert any(stage.startswith("Hole records, round 1: placing records at ") for stage in stages)
