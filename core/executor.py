@@ -16,6 +16,7 @@ import os
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from typing import Callable, Iterable
 
 TEXEL_CHUNK = 32_768
@@ -103,6 +104,8 @@ class Progress:
         self.callback = callback
         self.cancel_requested = threading.Event()
         self.stage = ""
+        self.target = ""
+        """The object whose texels the stage works on (:meth:`naming`), reported before the stage."""
         self.fraction = 0.0
         self._stage_start = time.perf_counter()
         self._lock = threading.Lock()
@@ -129,9 +132,20 @@ class Progress:
         self._emit(eta)
         self.check()
 
+    @contextmanager
+    def naming(self, target: str):
+        """Report the stages inside the block as ``"<target>: <stage>"``: a scene of many objects runs the
+        per-object stages once per object, and the label says whose turn it is. ``stage`` stays the bare
+        name (stages build their sub-stages' labels from it)."""
+        self.target = target
+        try:
+            yield
+        finally:
+            self.target = ""
+
     def _emit(self, eta):
         if self.callback is not None:
-            self.callback(self.stage, self.fraction, eta)
+            self.callback(f"{self.target}: {self.stage}" if self.target else self.stage, self.fraction, eta)
 
 
 class Beside:

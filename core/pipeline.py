@@ -506,9 +506,11 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
             passes.append(_hole_sources(run, passes[0], params))
         (cache, _, _), (density, sources) = passes
         shaded.append(t)
-        return indirect_at_texels(run.scene, run.caster(), density, sources, cache, index, t.points, t.texel_size,
-                                  t.stream, params, settings, run.executor, run.progress, run.stats, run.sky,
-                                  run.contact(), t.raster.centre_triangle)
+        name = f"{run.scene.targets[index].name} ({index + 1} of {len(targets)})" if len(targets) > 1 else ""
+        with run.progress.naming(name):
+            return indirect_at_texels(run.scene, run.caster(), density, sources, cache, index, t.points,
+                                      t.texel_size, t.stream, params, settings, run.executor, run.progress, run.stats,
+                                      run.sky, run.contact(), t.raster.centre_triangle)
 
     shaded: list = []
     for index, t in enumerate(targets):  # rasterise_targets' list: scene.targets' order

@@ -84,15 +84,19 @@ def test_gathering_noisy_records_again_brings_two_seeds_closer():
     assert difference(True) < 0.96 * difference(False)
 
 
-def test_the_stages_a_bake_reports_name_each_round_of_gathering_once():
+def test_the_stages_a_bake_reports_name_each_round_of_gathering_once_and_whose_texels_they_are():
     """The progress a user watches: noisy records' later gathers are named after the stage they belong to,
-    and the hole records' rounds after themselves, so labels never pile up one round's name on the last's."""
+    and the hole records' rounds after themselves, so labels never pile up one round's name on the last's;
+    the stages run once per object name it, the passes shared by all objects do not."""
     from pdic.core.executor import Progress
 
     stages = []
     bake(lamp_box(24), FINAL, Progress(lambda stage, fraction, eta: stages.append(stage)))
     again = [stage for stage in stages if "gather again" in stage]
     assert any(stage.startswith("Pass 3: refining records: ") for stage in again)
-    assert any(stage.startswith("Hole records, round 1: gathering at ") for stage in again)
+    assert any(stage.startswith("floor (1 of 2): Hole records, round 1: gathering at ") for stage in again)
     assert all(stage.count("gather again") == 1 for stage in again), sorted(set(again))
-    assert any(stage.startswith("Hole records, round 1: placing records at ") for stage in stages)
+    for name in ("floor (1 of 2)", "back (2 of 2)"):
+        assert f"{name}: Texel validity" in stages and f"{name}: Interpolating the cache at texels" in stages
+        assert any(stage.startswith(f"{name}: Hole records, round 1: placing records at ") for stage in stages)
+    assert not any(stage.startswith(("floor", "back")) for stage in stages if "Pass" in stage)
