@@ -233,7 +233,8 @@ def audit_worst(name: str, worst: int, paths: int, tag: str = "", seed: int = 0,
         texel, p, n = cycles_footprint(scene, index, chosen, per_axis, rng, blender_52)
         order = np.argsort(chosen)
         traced, traced_se = _traced_per_texel(chosen[order], texel, *mean_indirect(scene, caster, p, n, paths, rng))
-        for t, pt, pt_se in zip(chosen, traced[np.argsort(order)], traced_se[np.argsort(order)]):
+        back = np.argsort(order)  # sorted rows back to ``chosen``'s order
+        for t, pt, pt_se in zip(chosen, traced[back], traced_se[back]):
             y, x = divmod(int(t), target.width)
             found["texel"].append((y, x))
             found["target"].append(target.name)
