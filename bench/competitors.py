@@ -246,10 +246,12 @@ def cycles_bake(obj, size: tuple, passes: frozenset, spp: int, seed: int) -> dic
 
 
 def reference_pair(obj, size, passes, spp: int, cache: Path) -> tuple:
-    """The two reference bakes (seeds 1, 2) of one pass set, read from ``cache`` when baked before."""
+    """The two reference bakes (seeds 1, 2) of one pass set, read from ``cache`` when baked before on the
+    same light-map UVs and mesh (:func:`layout_key`: a new unwrap must not be judged by old texels)."""
     images = []
+    key = layout_key(obj)
     for seed in REFERENCE_SEEDS:
-        path = cache / f"ref_{'_'.join(sorted(passes))}_{size[0]}x{size[1]}_{spp}spp_seed{seed}.npy"
+        path = cache / f"ref_{'_'.join(sorted(passes))}_{size[0]}x{size[1]}_{spp}spp_seed{seed}_{key}.npy"
         if path.exists():
             images.append(np.load(path))
             continue
@@ -259,6 +261,22 @@ def reference_pair(obj, size, passes, spp: int, cache: Path) -> tuple:
         np.save(path, bake["image"])
         images.append(bake["image"])
     return tuple(images)
+
+
+def layout_key(obj) -> str:
+    """12 hex digits of SHA-256 over ``obj``'s vertex positions and ``PDIC_Lightmap`` UVs: which texels a
+    bake of it fills. The unwrap is cached by content, so an unwrap changed by new code gets a new key."""
+    import hashlib
+
+    from pdic.pdic_addon.uvmaps import LIGHTMAP_UV
+
+    mesh = obj.data
+    co = np.empty(3 * len(mesh.vertices), np.float32)
+    mesh.vertices.foreach_get("co", co)
+    layer = mesh.uv_layers[LIGHTMAP_UV].data
+    uv = np.empty(2 * len(layer), np.float32)
+    layer.foreach_get("uv", uv)
+    return hashlib.sha256(co.tobytes() + uv.tobytes()).hexdigest()[:12]
 
 
 def denoise(image: np.ndarray, mode: str, normal: np.ndarray) -> np.ndarray:

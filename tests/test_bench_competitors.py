@@ -169,3 +169,25 @@ def test_comparable_texels_leave_out_texels_with_another_face_in_place_facing_ei
             assert not fair[:, :8].any()
         else:
             assert fair.all()
+
+
+def test_cached_references_are_keyed_by_the_light_map_layout():
+    """A reference baked on one unwrap must not judge another: the cache key follows the UVs and the mesh."""
+    import bpy
+
+    from pdic.pdic_addon.uvmaps import LIGHTMAP_UV
+
+    mesh = bpy.data.meshes.new("layout_key")
+    mesh.from_pydata([(0, 0, 0), (1, 0, 0), (0, 1, 0)], [], [(0, 1, 2)])
+    layer = mesh.uv_layers.new(name=LIGHTMAP_UV)
+    obj = bpy.data.objects.new("layout_key", mesh)
+    try:
+        first = competitors.layout_key(obj)
+        assert competitors.layout_key(obj) == first and len(first) == 12
+        layer.data[1].uv = (0.5, 0.25)
+        moved_uv = competitors.layout_key(obj)
+        mesh.vertices[2].co = (0, 2, 0)
+        assert len({first, moved_uv, competitors.layout_key(obj)}) == 3
+    finally:
+        bpy.data.objects.remove(obj)
+        bpy.data.meshes.remove(mesh)
