@@ -135,9 +135,11 @@ def _fine_samples(smallest, sample_to_point, texel_size, settings) -> np.ndarray
 
     smallest : (m,) the smallest zone radius a R_k accepted at each merged point (inf: none).
     There Equation 3 changes inside a texel (zone edges are steps), so every sample gets its own
-    lookup, as a 2x2 box filter would, instead of the texel's centroid value.
+    lookup, as a 2x2 box filter would, instead of the texel's centroid value. Final only: Preview's
+    zones are that narrow at nearly every texel, and the per-sample lookups cost it a quarter of its
+    time for 2-3 % of its error.
     """
-    if not settings.deviations.fine_zones:
+    if not (settings.deviations.fine_zones and settings.refine):
         return np.zeros(0, np.int64)
     return np.flatnonzero((smallest < FINE_ZONE_TEXELS * texel_size)[sample_to_point])
 

@@ -82,7 +82,7 @@ class Deviations:
     gradient_limiting: bool = True
     """Pass 3: |grad_t| <= GRADIENT_LIMIT E_k / (a R_k) (0.3 x E_k across the zone) and |grad_r| <= E_k."""
     fine_zones: bool = True
-    """Texels inside narrow zones are interpolated per sample, not once at their centroid."""
+    """Texels inside narrow zones are interpolated per sample, not once at their centroid; Final only."""
     hole_rounds: int = HOLE_ROUNDS
     """Rounds of hole records (section 3.4); the paper places them once."""
     gap_fill: bool = True

@@ -170,3 +170,20 @@ def test_gap_fill_places_under_one_hole_record_per_hundred_covered_texels():
     assert counters["texel_points_unfilled"] == 0
     for name, image in result.indirect.items():
         assert np.isfinite(image).all() and image[result.coverage[name]].min() > 0, name
+
+
+def test_final_looks_up_samples_in_narrow_zones_and_preview_each_texel_once():
+    """Deviation fine-zones is Final's: Preview interpolates each texel once, at its samples' centroid."""
+    from pdic.core.pipeline import bake
+    from pdic.core.settings import preset
+
+    from scenes import lamp_box
+
+    points = {}
+    for quality in ("PREVIEW", "FINAL"):
+        counters = bake(lamp_box(32), preset(quality, photons=20_000, threads=1)).stats["counters"]
+        points[quality] = counters["texel_points_interpolated"]
+        covered = counters["texels_covered"]
+    # One point per texel (per triangle, where a texel spans two) against 2x2 samples per texel again.
+    assert points["PREVIEW"] < 1.5 * covered
+    assert points["FINAL"] - points["PREVIEW"] > 2 * covered
