@@ -135,9 +135,9 @@ def _fine_samples(smallest, sample_to_point, texel_size, settings) -> np.ndarray
 
     smallest : (m,) the smallest zone radius a R_k accepted at each merged point (inf: none).
     There Equation 3 changes inside a texel (zone edges are steps), so every sample gets its own
-    lookup, as a 2x2 box filter would, instead of the texel's centroid value. Final only: Preview's
-    zones are that narrow at nearly every texel, and the per-sample lookups cost it a quarter of its
-    time for 2-3 % of its error.
+    lookup, as a 2x2 box filter would, instead of the texel's centroid value. Final only: at Preview
+    nearly every texel lies in such a zone, and looking its samples up again took a quarter of Sponza's
+    Preview time for 3 % of its error (docs/DEVIATIONS.md).
     """
     if not (settings.deviations.fine_zones and settings.refine):
         return np.zeros(0, np.int64)
