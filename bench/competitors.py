@@ -264,10 +264,10 @@ def reference_pair(obj, size, passes, spp: int, cache: Path) -> tuple:
 
 
 def layout_key(obj) -> str:
-    """12 hex digits of SHA-256 over ``obj``'s vertex positions and ``PDIC_Lightmap`` UVs: which texels a
-    bake of it fills. The unwrap is cached by content, so an unwrap changed by new code gets a new key."""
-    import hashlib
-
+    """12 hex digits of the content hash (``core.bake_cache.content_hash``) of ``obj``'s vertex positions and
+    ``PDIC_Lightmap`` UVs: which texels a bake of it fills. The unwrap is cached by content, so an unwrap
+    changed by new code gets a new key."""
+    from pdic.core.bake_cache import content_hash
     from pdic.pdic_addon.uvmaps import LIGHTMAP_UV
 
     mesh = obj.data
@@ -276,7 +276,7 @@ def layout_key(obj) -> str:
     layer = mesh.uv_layers[LIGHTMAP_UV].data
     uv = np.empty(2 * len(layer), np.float32)
     layer.foreach_get("uv", uv)
-    return hashlib.sha256(co.tobytes() + uv.tobytes()).hexdigest()[:12]
+    return content_hash("layout", co, uv)[:12]
 
 
 def denoise(image: np.ndarray, mode: str, normal: np.ndarray) -> np.ndarray:
