@@ -18,6 +18,15 @@ def norms(v: np.ndarray, keepdims: bool = False) -> np.ndarray:
     return length[..., None] if keepdims else length
 
 
+def dots(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a . b of 3-vectors along the last axis (..., 3), broadcast, summed left to right.
+
+    ``np.einsum("ij,ij->i", a, b)`` adds the three products in an order its SIMD loops choose
+    (numpy 1.26 on x86-64: (a0 b0 + a2 b2) + a1 b1); this order is fixed, so compiled code
+    (core/native/pdic_native.c) can match it to the bit on every platform and numpy version."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
 def unit(v: np.ndarray) -> np.ndarray:
     """``v`` (..., 3) scaled to unit length; zero vectors stay zero."""
     length = norms(v, keepdims=True)

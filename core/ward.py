@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .vectors import norms
+from .vectors import dots, norms
 
 DENOMINATOR_FLOOR = 1e-6
 IN_FRONT = 0.05
@@ -30,7 +30,7 @@ def ward_weight(p: np.ndarray, n: np.ndarray, p_k: np.ndarray, n_k: np.ndarray, 
     p, n : (m, 3) query points and unit normals; p_k, n_k : (m, 3) records, or (3,) for
     one record against many points; R_k : (m,) or a scalar, > 0.
     """
-    return weight_from(norms(p - p_k), np.einsum("...j,...j->...", n, n_k), R_k)
+    return weight_from(norms(p - p_k), dots(n, n_k), R_k)
 
 
 def weight_from(d: np.ndarray, cos: np.ndarray, R_k: np.ndarray) -> np.ndarray:
@@ -42,7 +42,7 @@ def weight_from(d: np.ndarray, cos: np.ndarray, R_k: np.ndarray) -> np.ndarray:
 def accepted(w: np.ndarray, a: float, p: np.ndarray, n: np.ndarray, p_k: np.ndarray, n_k: np.ndarray,
              R_k: np.ndarray) -> np.ndarray:
     """Equation 2 plus Ward's in-front test: (m,) bool, may record k contribute at p?"""
-    return accepted_from(w, a, np.einsum("...j,...j->...", p - p_k, n + n_k), R_k)
+    return accepted_from(w, a, dots(p - p_k, n + n_k), R_k)
 
 
 def accepted_from(w: np.ndarray, a: float, lead: np.ndarray, R_k: np.ndarray) -> np.ndarray:
@@ -58,7 +58,7 @@ def record_estimate(E_k: np.ndarray, p: np.ndarray, n: np.ndarray, p_k: np.ndarr
     """
     E = E_k.astype(np.float64, copy=True)
     if grad_r is not None:
-        E += np.einsum("mcj,mj->mc", grad_r, np.cross(n_k, n))
+        E += dots(grad_r, np.cross(n_k, n)[:, None, :])
     if grad_t is not None:
-        E += np.einsum("mcj,mj->mc", grad_t, p - p_k)
+        E += dots(grad_t, (p - p_k)[:, None, :])
     return E
