@@ -69,7 +69,9 @@ class HitGrid:
         i = np.clip(np.floor(x), 0, L - 1).astype(np.int64)
         j = np.clip(np.floor(y), 0, L - 1).astype(np.int64)
         i = np.minimum(i, L - 1 - j)  # a hit on the far edge (u + v = 1) rounds into the row's last cell
-        upper = (x - i) + (y - j) > 1.0
+        # The upper cell of (i, j), if the row has one there (a hit just past u + v = 1 by rounding must not
+        # read the next row's, or past the top row, the next triangle's first cell).
+        upper = ((x - i) + (y - j) > 1.0) & (i < L - 1 - j)
         cell = self.offset[triangle] + j * (2 * L - j) + 2 * i + upper
         E = np.take(self.E.reshape(-1, 3), back * self.E.shape[1] + cell, axis=0).astype(np.float64)
         rho = None if self.albedo is None else np.take(self.albedo, cell, axis=0).astype(np.float64)

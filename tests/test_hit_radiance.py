@@ -8,7 +8,8 @@ import numpy as np
 from pdic.core.executor import make_executor
 from pdic.core import scene as sc
 from pdic.core.albedo import albedo
-from pdic.core.hit_radiance import HitGrid, build_hit_grid, cell_albedo, grid_points, grid_sides, open_cells
+from pdic.core.hit_radiance import (HitGrid, build_hit_grid, cell_albedo, cell_triangles, grid_points, grid_sides,
+                                    open_cells)
 from pdic.core.pipeline import bake
 from pdic.core.rays import RayCaster
 from pdic.core.scene import PointLight
@@ -197,3 +198,25 @@ def test_one_k_nearest_query_answers_the_nearest_of_points_asked_on_both_sides()
     _, k_nearest = cKDTree(density.p).query(q, k=neighbours.k)
     assert np.array_equal(neighbours.nearest(np.arange(400)), nearest)
     assert np.array_equal(neighbours.k_nearest(np.arange(100, 300)), k_nearest[100:300])
+
+
+def _hit_grid(rng, T: int) -> HitGrid:
+    """A grid of random sides 1-8 over T triangles, random values in its cells."""
+    side = rng.integers(1, 9, T)
+    offset, _ = cell_triangles(side)
+    V = int((side * side).sum())
+    return HitGrid(side, offset, rng.random((2, V, 3), dtype=np.float32), rng.random((2, V, 3), dtype=np.float32),
+                   rng.normal(size=(V, 3)))
+
+
+def test_a_hit_just_past_the_far_edge_reads_its_own_triangles_cell():
+    """u + v a rounding past 1 in a grid's top row: the cell is the row's last, not the next triangle's first
+    (on the last triangle the lookup raised IndexError)."""
+    rng = np.random.default_rng(15)
+    grid = _hit_grid(rng, T=3)
+    last = len(grid.side) - 1
+    L, first = int(grid.side[last]), int(grid.offset[last])
+    bary = np.array([[0.05 + 1e-9, 0.95], [np.nextafter(0.5, 1.0), 0.5]])  # u + v just over 1
+    _, centroid, _, _ = grid.lookup(np.array([last, last]), bary, np.zeros(2, bool))
+    cells = [int(np.flatnonzero((grid.centroid == c).all(axis=1))[0]) for c in centroid]
+    assert all(first <= c < first + L * L for c in cells), (cells, first, L)
