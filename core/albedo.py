@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import native_kernels
 from .scene import Scene, Texture
 
 
@@ -68,15 +69,24 @@ def sample_texture(texture: Texture, uv: np.ndarray) -> np.ndarray:
     px = texture.pixels
     H, W = px.shape[:2]
     uv = np.nan_to_num(np.asarray(uv, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
-    x = uv[:, 0] * W
-    y = uv[:, 1] * H
     if texture.interpolation == "Closest":
-        i = np.floor(x).astype(np.int64) % W
-        j = np.floor(y).astype(np.int64) % H
+        i = np.floor(uv[:, 0] * W).astype(np.int64) % W
+        j = np.floor(uv[:, 1] * H).astype(np.int64) % H
         return px[j, i]
     if texture.interpolation != "Linear":
         raise ValueError(f"texture {texture.name!r}: unsupported interpolation {texture.interpolation!r}")
-    # Bilinear between the four nearest pixel centres.
+    lib = native_kernels.library()
+    if lib is not None and px.dtype == np.float32:
+        return native_kernels.bilinear_rgb(lib, px, uv)
+    return bilinear_numpy(px, uv)
+
+
+def bilinear_numpy(px: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear between the four nearest pixel centres of image px (H, W, 3) at finite uv (n, 2), repeating
+    (:func:`sample_texture`'s; :func:`core.native_kernels.bilinear_rgb` compiled)."""
+    H, W = px.shape[:2]
+    x = uv[:, 0] * W
+    y = uv[:, 1] * H
     x -= 0.5
     y -= 0.5
     x0 = np.floor(x)

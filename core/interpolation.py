@@ -12,11 +12,13 @@ from __future__ import annotations
 import copy
 from dataclasses import dataclass, field
 import numpy as np
+from . import native_kernels
 from .constants import OFF_PLANE, RECORD_STEP_BEHIND
 from .executor import TEXEL_CHUNK, slices
 from .irradiance_cache import IrradianceCache
 from .record_walls import beyond_wall_and_reach, wall_clearance
-from .ward import accepted, record_estimate, ward_weight
+from .vectors import dots
+from .ward import DENOMINATOR_FLOOR, IN_FRONT, accepted, record_estimate, ward_weight
 from .zone_grid import CELL_PER_ZONE, ZoneGrid, cell_per_zone
 
 
@@ -82,66 +84,103 @@ class CacheLookup:
     def _equation_3(self, p: np.ndarray, n: np.ndarray, with_zone: bool, pairs: tuple | None = None):
         m = len(p)
         E_k, grad_r, grad_t = self.values
-        num = np.zeros((m, E_k.shape[1]))
-        den = np.zeros(m)
-        smallest = np.full(m, np.inf)
         c = self.cache
         rows, rec = self.candidates(p) if pairs is None else pairs
-        if len(rows):
-            p_r, n_r = np.take(p, rows, axis=0), np.take(n, rows, axis=0)
-            p_k, n_k, R_k = np.take(c.p, rec, axis=0), np.take(c.n, rec, axis=0), c.R[rec] + self.margin / self.a
-            w = ward_weight(p_r, n_r, p_k, n_k, R_k)
-            ok = accepted(w, self.a, p_r, n_r, p_k, n_k, R_k)
-            delta = p_r - p_k
-            d2 = np.einsum("ij,ij->i", delta, delta)
-            own_zone = self.a * c.R[rec]  # the record's zone before any gap-fill margin
-            near_wall = ok & (d2 >= self.clearance[rec] ** 2)
-            # deviation: wall-sectors: a point past a wall met by one sector ray only, in the wedge
-            # between the polygons whose missed rays stand at the zone's radius and far away, counts
-            # if the record sees it (a floor running on under a wall, not the floor beside a column).
-            walled = np.flatnonzero(near_wall)
-            past_reach, past_far = beyond_wall_and_reach(c.wall[rec[walled]], delta[walled], n_k[walled],
-                                                         own_zone[walled])
+        if not len(rows):
+            return np.zeros((m, E_k.shape[1])), np.zeros(m), np.full(m, np.inf)
+        lib = native_kernels.library()
+        if lib is None:
+            w, ok, d2 = ward_pairs(p, n, c.p, c.n, c.R, self.margin / self.a, self.a, rows, rec)
+        else:
+            w, ok, d2 = native_kernels.ward_accept(lib, p, n, c.p, c.n, c.R, self.margin / self.a, self.a, rows,
+                                                   rec, DENOMINATOR_FLOOR, IN_FRONT)
+
+        def pair_vectors(i):
+            """(p, n at the points; p_k, n_k of the records; p - p_k) of pairs i."""
+            p_r, p_k = np.take(p, rows[i], axis=0), np.take(c.p, rec[i], axis=0)
+            return p_r, np.take(n, rows[i], axis=0), p_k, np.take(c.n, rec[i], axis=0), p_r - p_k
+
+        own_zone = self.a * c.R  # the records' zones before any gap-fill margin
+        near_wall = ok & (d2 >= self.clearance[rec] ** 2)
+        # deviation: wall-sectors: a point past a wall met by one sector ray only, in the wedge
+        # between the polygons whose missed rays stand at the zone's radius and far away, counts
+        # if the record sees it (a floor running on under a wall, not the floor beside a column).
+        walled = np.flatnonzero(near_wall)
+        if len(walled):
+            p_r, n_r, p_k, n_k, delta = pair_vectors(walled)
+            past_reach, past_far = beyond_wall_and_reach(c.wall[rec[walled]], delta, n_k, own_zone[rec[walled]])
             inside, band = ~past_reach, past_reach & ~past_far
             if self.caster is not None and band.any():
-                b = walled[band]
-                inside[band] = self.caster.sides_visible(p_r[b], n_r[b], p_k[b], n_k[b])
+                inside[band] = self.caster.sides_visible(p_r[band], n_r[band], p_k[band], n_k[band])
             ok[walled] = inside
-            if self.caster is not None:  # a surface between point and record hides it (a closed box's inside)
-                ok[ok] = ~self.caster.hidden_off_plane(p_r[ok], n_r[ok], p_k[ok], n_k[ok])
-                # ... and one behind it past the plane's curvature (a step down: see RECORD_STEP_BEHIND), or
-                # any distance behind it while the point lies in front of the record's own plane: a layer
-                # under the point's surface (on a convex surface each lies behind the other's plane).
-                depth = np.einsum("ij,ij->i", delta, n_r)
-                step = depth > RECORD_STEP_BEHIND * own_zone
-                if self.layers:
-                    off = OFF_PLANE * self.caster.epsilon
-                    step |= (depth > off) & (np.einsum("ij,ij->i", delta, n_k) > off)
-                behind = np.flatnonzero(ok & step)
-                if len(behind):
-                    ok[behind] = self.caster.sides_visible(p_r[behind], n_r[behind], p_k[behind], n_k[behind])
-            if self.margin > 0:  # deviation: gap-fill: past the record's own zone, walls are unknown
-                past = np.flatnonzero(ok & (d2 >= own_zone ** 2))
-                if len(past):
-                    ok[past] = self.caster is not None and self.caster.sides_visible(
-                        p_r[past], n_r[past], p_k[past], n_k[past])
-            rows, rec, w = rows[ok], rec[ok], w[ok]
-            p_at = p_r[ok]
-            if self.margin > 0:
-                # deviation: gap-fill: a gradient holds over its own zone; past it E_k stays as at its edge.
-                scale = np.minimum(1.0, own_zone[ok] / np.maximum(np.sqrt(d2[ok]), 1e-300))
-                p_at = p_k[ok] + delta[ok] * scale[:, None]
-            E_rec = record_estimate(E_k[rec], p_at, n_r[ok], p_k[ok], n_k[ok],
-                                    grad_r[rec] if self.use_gradients else None,
-                                    grad_t[rec] if self.use_gradients else None)
-            E_rec = np.maximum(E_rec, 0.0)
-            for ch in range(E_k.shape[1]):
-                num[:, ch] = np.bincount(rows, weights=w * E_rec[:, ch], minlength=m)
-            den = np.bincount(rows, weights=w, minlength=m)
-            if with_zone:
-                np.minimum.at(smallest, rows, self.zone[rec])
+        if self.caster is not None:  # a surface between point and record hides it (a closed box's inside)
+            kept = np.flatnonzero(ok)
+            p_r, n_r, p_k, n_k, delta = pair_vectors(kept)
+            seen = ~self.caster.hidden_off_plane(p_r, n_r, p_k, n_k)
+            # ... and one behind it past the plane's curvature (a step down: see RECORD_STEP_BEHIND), or
+            # any distance behind it while the point lies in front of the record's own plane: a layer
+            # under the point's surface (on a convex surface each lies behind the other's plane).
+            depth = np.einsum("ij,ij->i", delta, n_r)
+            step = depth > RECORD_STEP_BEHIND * own_zone[rec[kept]]
+            if self.layers:
+                off = OFF_PLANE * self.caster.epsilon
+                step |= (depth > off) & (np.einsum("ij,ij->i", delta, n_k) > off)
+            behind = np.flatnonzero(seen & step)
+            if len(behind):
+                seen[behind] = self.caster.sides_visible(p_r[behind], n_r[behind], p_k[behind], n_k[behind])
+            ok[kept] = seen
+        at = None
+        if self.margin > 0:  # deviation: gap-fill: past the record's own zone, walls are unknown
+            past = np.flatnonzero(ok & (d2 >= own_zone[rec] ** 2))
+            if len(past):
+                ok[past] = self.caster is not None and self.caster.sides_visible(*pair_vectors(past)[:4])
+            # deviation: gap-fill: a gradient holds over its own zone; past it E_k stays as at its edge.
+            kept = np.flatnonzero(ok)
+            _, _, p_k, _, delta = pair_vectors(kept)
+            scale = np.minimum(1.0, own_zone[rec[kept]] / np.maximum(np.sqrt(d2[kept]), 1e-300))
+            at = p_k + delta * scale[:, None]
+        rows, rec, w = rows[ok], rec[ok], w[ok]
+        grads = (grad_r, grad_t) if self.use_gradients else (None, None)
+        zone = self.zone if with_zone else None
+        if lib is None:
+            num, den, smallest = equation3_sums(m, p, n, at, c.p, c.n, E_k, *grads, zone, rows, rec, w)
+        else:
+            num, den, smallest = native_kernels.equation3_sums(lib, m, p, n, at, c.p, c.n, E_k, *grads, zone,
+                                                               rows, rec, w)
         E = np.divide(num, den[:, None], out=np.zeros_like(num), where=den[:, None] > 0)
-        return E, den, smallest
+        return E, den, np.full(m, np.inf) if smallest is None else smallest
+
+
+def ward_pairs(p, n, p_k, n_k, R, R_add: float, a: float, rows, rec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Equations 1 and 2 over the pairs (rows, rec) of points p, n (m, 3) and records p_k, n_k (K, 3) of
+    radius R + R_add: (w, accepted, |p - p_k|^2), each (pairs,) (:func:`core.native_kernels.ward_accept`
+    compiled)."""
+    p_r, n_r = np.take(p, rows, axis=0), np.take(n, rows, axis=0)
+    p_k, n_k, R_k = np.take(p_k, rec, axis=0), np.take(n_k, rec, axis=0), R[rec] + R_add
+    w = ward_weight(p_r, n_r, p_k, n_k, R_k)
+    delta = p_r - p_k
+    return w, accepted(w, a, p_r, n_r, p_k, n_k, R_k), dots(delta, delta)
+
+
+def equation3_sums(m: int, p, n, at, p_k, n_k, E_k, grad_r, grad_t, zone, rows, rec, w):
+    """Equation 3's sums over the accepted pairs (rows, rec) with weights w, in pair order: num (m, c) of
+    w E_rec (record k's estimate extrapolated to ``at`` (pairs, 3), or to p[rows] when None, clamped at
+    0), den (m,) of w, and (m,) the smallest zone[rec] per point (None without zone).
+    (:func:`core.native_kernels.equation3_sums` compiled.)"""
+    num = np.zeros((m, E_k.shape[1]))
+    n_r = np.take(n, rows, axis=0)
+    E_rec = record_estimate(E_k[rec], np.take(p, rows, axis=0) if at is None else at, n_r,
+                            np.take(p_k, rec, axis=0), np.take(n_k, rec, axis=0),
+                            None if grad_r is None else grad_r[rec], None if grad_t is None else grad_t[rec])
+    E_rec = np.maximum(E_rec, 0.0)
+    for ch in range(E_k.shape[1]):
+        num[:, ch] = np.bincount(rows, weights=w * E_rec[:, ch], minlength=m)
+    den = np.bincount(rows, weights=w, minlength=m)
+    smallest = None
+    if zone is not None:
+        smallest = np.full(m, np.inf)
+        np.minimum.at(smallest, rows, zone[rec])
+    return num, den, smallest
 
 
 def interpolate(cache: IrradianceCache, a: float, gradients: bool, p: np.ndarray, n: np.ndarray, executor,

@@ -47,7 +47,8 @@ Schema (``schema_version`` 1)
     stage, and ``direct_wait`` is the time the bake then waited for it, if any), ``seconds_beside``
     (list of the stages that ran beside others, absent when none did), ``seconds_total`` (float, s:
     the stages' sum, those beside left out), ``counters`` (dict name -> int or float: photons,
-    records, rays cast/saved, texels, ...). Keys sorted. For every stage that cast rays, ``embree_seconds_<stage>``
+    records, rays cast/saved, texels, ...), ``kernels`` (str: how Equation 3 ran, ``"compiled (<library>)"`` or
+    ``"numpy (<why not compiled>)"``, :mod:`core.native_kernels`). Keys sorted. For every stage that cast rays, ``embree_seconds_<stage>``
     (float, s: wall time inside Embree's traversal calls, summed over threads) and
     ``embree_share_<stage>`` (float in (0, 1]: that time over the stage's thread time,
     ``threads`` x its wall seconds, one thread for a stage run beside the others; e.g. ``embree_share_refine`` for pass 3; a low share means

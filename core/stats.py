@@ -9,6 +9,8 @@ import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
+from . import native_kernels
+
 
 @dataclass
 class BakeStats:
@@ -82,6 +84,7 @@ class BakeStats:
             "seconds": {k: round(v, 4) for k, v in self.seconds.items()},
             "seconds_total": round(total, 4),
             "counters": {k: (int(v) if float(v).is_integer() else float(v)) for k, v in counters.items()},
+            "kernels": native_kernels.status(),
         }
         if self.beside:
             out["seconds_beside"] = sorted(self.beside)

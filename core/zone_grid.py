@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import native_kernels
+
 CELL_PER_ZONE = 3.0
 """Cell side / the median zone radius; the pairs found do not depend on it. A bake builds about ten
 grids (Equation 3 at texels and at holes, the hit grids) on one thread and queries them on all.
@@ -95,6 +97,13 @@ class ZoneGrid:
     def pairs(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(rows, records) int64: every (point, record) with ``|q - p_k| <= zone_k``, points ascending,
         each point's records ascending. q : (m, 3) float64."""
+        if self.empty or len(q) == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        lib = native_kernels.library()
+        return self.pairs_numpy(q) if lib is None else native_kernels.zone_pairs(lib, self, q)
+
+    def pairs_numpy(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`pairs` in numpy (the fallback of :mod:`core.native_kernels`, and its reference)."""
         if self.empty or len(q) == 0:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
         # Non-finite or far-away points land outside the grid (-1) before the integer cast.

@@ -135,6 +135,10 @@ def test_linux_build_holds_package_and_wheels_but_no_dev_files(built_zip):
     assert all(w.startswith("wheels/") and "x86_64" in w for w in wheels), wheels
     assert sorted(inner["wheels"]) == sorted(f"./{w}" for w in wheels)
     assert inner["build"]["generated"]["platforms"] == [PLATFORM]
+    # The compiled kernels of this platform, built by zig, with their source; no import library or object file.
+    assert sorted(n for n in names if n.startswith("core/native/")) == [
+        "core/native/pdic_native-linux-x64.so", "core/native/pdic_native.c"]
+    assert zf_bytes(built_zip, "core/native/pdic_native-linux-x64.so")[:4] == b"\x7fELF"
     # Nothing from development.
     dev = [n for n in names if n.split("/")[0] in {"tests", "bench", "tools", ".ci", ".venv", "sample_blends", "out",
                                                    "dist", "build", "pdic_bootstrap.py", "pdic_bake.py",
@@ -142,6 +146,11 @@ def test_linux_build_holds_package_and_wheels_but_no_dev_files(built_zip):
                                                    "README.md", ".gitignore"}
            or "__pycache__" in n or n.endswith(".pyc")]
     assert dev == [], f"development files in the extension: {dev}"
+
+
+def zf_bytes(path: Path, name: str) -> bytes:
+    with zipfile.ZipFile(path) as zf:
+        return zf.read(name)
 
 
 def test_built_zip_passes_blenders_validator(built_zip):
@@ -224,6 +233,7 @@ def bake():
     image.pixels.foreach_get(pixels)
     rgba = pixels.reshape(-1, 4)
     covered = rgba[:, 3] > 0.5
+    report["kernels"] = manifest["stats"]["kernels"]
     report["module_files"] = {name: getattr(sys.modules.get(name), "__file__", None)
                               for name in ("scipy", "embreex", "xatlas", "numpy")}
     report["image"] = {
@@ -294,6 +304,12 @@ def test_each_blender_unpacks_only_the_wheels_of_its_own_python(installed):
     compiled = [p.name for p in Path(installed["site_directory"]).rglob("*.so")]
     assert compiled and not any(f"cpython-{other}-" in name for name in compiled), \
         [n for n in compiled if f"cpython-{other}-" in n][:5]
+
+
+def test_the_extensions_compiled_kernels_load_in_blender(installed):
+    """The zig-built library of the zip passes its bit-for-bit check inside each Blender's own Python."""
+    assert "bake" not in installed["errors"], installed["errors"].get("bake")
+    assert installed["kernels"] == "compiled (pdic_native-linux-x64.so)", installed["kernels"]
 
 
 def test_bake_imports_bundled_packages_from_the_extension_and_numpy_from_blender(installed):

@@ -10,7 +10,9 @@ Steps:
    Blender ships it.
 2. Stage ``build/extension/`` with ``__init__.py``, ``core/``, ``pdic_addon/``,
    ``LICENSE`` (when present), ``wheels/`` and a copy of ``blender_manifest.toml``
-   whose ``platforms`` and ``wheels`` list what was actually found.
+   whose ``platforms`` and ``wheels`` list what was actually found; ``core/native/``
+   gets the compiled kernels of each of those platforms, cross-built with zig
+   (``tools/build_native.py``; zig is installed from PyPI's ziglang on first use).
 3. Run ``blender_ext.py build --split-platforms`` (the builder inside the bpy
    wheel, the same code as ``blender --command extension build``) into ``dist/``,
    then ``blender_ext.py validate`` on every zip.
@@ -37,6 +39,9 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tools"))
+import build_native  # noqa: E402
+
 MANIFEST = ROOT / "blender_manifest.toml"
 REQUIREMENTS = ROOT / "requirements.txt"
 
@@ -192,6 +197,7 @@ def stage(staging: Path, wheels: list[Path], platforms: list[str]) -> Path:
             shutil.copy2(src, staging / rel)
         elif rel != "LICENSE":
             raise BuildError(f"missing {src}: the extension needs it")
+    stage_native(staging / "core" / "native", platforms)
     (staging / "wheels").mkdir()
     for wheel in wheels:
         shutil.copy2(wheel, staging / "wheels" / wheel.name)
@@ -200,10 +206,23 @@ def stage(staging: Path, wheels: list[Path], platforms: list[str]) -> Path:
     return staging
 
 
+def stage_native(folder: Path, platforms: list[str]) -> None:
+    """The compiled kernels of Equation 3 (core/native_kernels.py) for each platform, cross-built with zig
+    from core/native/pdic_native.c (their source ships beside them); whatever the checkout had built for
+    itself is left out."""
+    for old in folder.glob("pdic_native-*"):
+        old.unlink()
+    for platform in platforms:
+        try:
+            build_native.build_zig(platform, folder, force=True)
+        except (OSError, subprocess.CalledProcessError) as ex:
+            raise BuildError(f"could not build the compiled kernels for {platform} with zig: {ex}") from ex
+
+
 def build(platforms: list[str], dist: Path, cache: Path, staging: Path) -> list[Path]:
     """Build one zip per platform that has every bundled wheel for every Blender Python; returns their paths."""
     versions = {python: pinned_versions(requirements=path) for python, path in BLENDER_PYTHONS.items()}
-    ready, wheels = [], []
+    ready, wheels = [], {}
     for platform in platforms:
         t0 = time.perf_counter()
         found, missing = [], []
@@ -216,17 +235,18 @@ def build(platforms: list[str], dist: Path, cache: Path, staging: Path) -> list[
             continue
         print(f"wheels {platform}: {', '.join(w.name for w in found)} ({time.perf_counter() - t0:.1f} s)", flush=True)
         ready.append(platform)
-        wheels.extend(found)
+        wheels[platform] = found
     if not ready:
         raise BuildError(f"no platform among {', '.join(platforms)} has all of {', '.join(BUNDLED)}")
 
-    stage(staging, wheels, ready)
     dist.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    run_blender_ext(
-        "build", "--split-platforms", "--valid-tags", str(valid_tags_path()),
-        "--source-dir", str(staging), "--output-dir", str(dist),
-    )
+    for platform in ready:  # staged one platform at a time: each zip holds its own compiled kernels only
+        stage(staging, wheels[platform], [platform])
+        run_blender_ext(
+            "build", "--split-platforms", "--valid-tags", str(valid_tags_path()),
+            "--source-dir", str(staging), "--output-dir", str(dist),
+        )
     version = re.search(r'^version\s*=\s*"([^"]+)"', MANIFEST.read_text(), flags=re.M).group(1)
     zips = [dist / f"pdic-{version}-{p.replace('-', '_')}.zip" for p in ready]
     for z in zips:

@@ -38,9 +38,14 @@ requirements_hash() {
         | sha256sum | cut -d' ' -f1
 }
 
+# The compiled kernels of Equation 3 (core/native_kernels.py), built with this machine's C compiler when
+# missing or older than their source; without a compiler PDIC bakes with numpy kernels, and says so.
+build_native() { "$VENV/bin/python" "$ROOT/tools/build_native.py" || say "warning: compiled kernels not built"; }
+
 # Fast path: already set up.
 if [[ -x "$VENV/bin/python" ]] && python_is "$PY" "$VENV/bin/python" \
     && [[ -f "$STAMP" ]] && [[ "$(cat "$STAMP")" == "$(requirements_hash)" ]]; then
+    build_native
     exit 0
 fi
 
@@ -87,4 +92,5 @@ say "installing pinned requirements from $(basename "$REQUIREMENTS") (pip)"
 rm -f "$STAMP"
 "$VENV/bin/python" -m pip install --disable-pip-version-check -q -r "$REQUIREMENTS"
 requirements_hash >"$STAMP"
+build_native
 say "ready in $((SECONDS - start)) s: $VENV"

@@ -1,0 +1,221 @@
+"""Compiled kernels of Equation 3 and of texture reads, with the numpy code they replace as the fallback.
+
+Equation 3 is looked up at every texel sample, at every gathering ray's hit and at every hit-grid cell,
+and its numpy form spends most of its time making arrays per (point, record) pair; textures are read at
+every photon and gathering hit. The loops in ``core/native/pdic_native.c`` do the same floating-point operations in the same order as the numpy
+functions they stand for (named in their docstrings below), so a bake gives the same light maps to the
+bit either way (tests/test_native_kernels.py; ``tools/golden.py``).
+
+The library is our own C, built per platform by ``tools/build_native.py`` (the host's C compiler for a
+checkout, zig for the extension's three platforms). It is optional: when the platform's library is
+missing, of another version, or fails its check at load (a tiny problem compared with the numpy
+functions, bit for bit), the numpy functions run instead and :func:`status` says why.
+``PDIC_NATIVE=0`` in the environment turns the library off.
+"""
+from __future__ import annotations
+
+import copy
+import ctypes
+import os
+import platform
+import threading
+from pathlib import Path
+
+import numpy as np
+
+VERSION = 2
+"""The C library's ``pdic_native_version()`` this module calls; a library of another version is not used."""
+NATIVE_DIR = Path(__file__).resolve().parent / "native"
+SUFFIX = {"linux": ".so", "windows": ".dll", "macos": ".dylib"}
+
+
+def platform_name(system: str | None = None, machine: str | None = None) -> str:
+    """Blender's platform name (``linux-x64``, ``windows-x64``, ``macos-arm64``, ...) of this machine."""
+    system = (system or platform.system()).lower()
+    machine = (machine or platform.machine()).lower()
+    os_name = {"darwin": "macos", "win32": "windows"}.get(system, system)
+    arch = {"x86_64": "x64", "amd64": "x64", "aarch64": "arm64", "arm64": "arm64"}.get(machine, machine)
+    return f"{os_name}-{arch}"
+
+
+def library_path(name: str | None = None) -> Path:
+    """Where the library for platform ``name`` (default: this machine's) lives."""
+    name = name or platform_name()
+    return NATIVE_DIR / f"pdic_native-{name}{SUFFIX.get(name.split('-')[0], '.so')}"
+
+
+_I64 = ctypes.c_int64
+_F64 = ctypes.c_double
+_PTR = ctypes.c_void_p
+
+_lock = threading.Lock()
+_lib = None
+_status = None
+
+
+def _ptr(a: np.ndarray | None):
+    return None if a is None else a.ctypes.data_as(_PTR)
+
+
+def _load():
+    path = library_path()
+    if os.environ.get("PDIC_NATIVE", "1") == "0":
+        return None, "off (PDIC_NATIVE=0)"
+    if not path.is_file():
+        return None, f"numpy (no compiled kernels for {platform_name()}: {path.name} not found)"
+    try:
+        lib = ctypes.CDLL(str(path))
+    except OSError as exc:
+        return None, f"numpy ({path.name} did not load: {exc})"
+    lib.pdic_native_version.restype = _I64
+    if lib.pdic_native_version() != VERSION:
+        return None, f"numpy ({path.name} is version {lib.pdic_native_version()}, this code needs {VERSION})"
+    lib.pdic_zone_pairs.restype = _I64
+    lib.pdic_zone_pairs.argtypes = [_PTR, _I64, _PTR, _F64, _PTR, _PTR, _PTR, _PTR, _PTR, _I64, _PTR, _PTR,
+                                    _PTR, _PTR, _PTR, _I64]
+    lib.pdic_ward_accept.restype = None
+    lib.pdic_ward_accept.argtypes = [_PTR, _PTR, _PTR, _PTR, _PTR, _F64, _F64, _F64, _F64, _PTR, _PTR, _I64,
+                                     _PTR, _PTR, _PTR]
+    lib.pdic_equation3_sums.restype = None
+    lib.pdic_equation3_sums.argtypes = [_PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _I64, _PTR, _PTR, _PTR,
+                                        _PTR, _I64, _PTR, _PTR, _PTR]
+    lib.pdic_bilinear_rgb.restype = None
+    lib.pdic_bilinear_rgb.argtypes = [_PTR, _I64, _I64, _PTR, _I64, _PTR]
+    problem = _self_check(lib)
+    if problem:
+        return None, f"numpy ({path.name} failed its check: {problem})"
+    return lib, f"compiled ({path.name})"
+
+
+def library():
+    """The loaded library, or None (then :func:`status` says why); loaded and checked once."""
+    global _lib, _status
+    if _status is None:
+        with _lock:
+            if _status is None:
+                _lib, _status = _load()
+    return _lib
+
+
+def status() -> str:
+    """How Equation 3 runs here: ``compiled (<file>)`` or why it is numpy (for the manifest and the log)."""
+    library()
+    return _status
+
+
+def _f64(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def _i64(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.int64)
+
+
+def zone_pairs(lib, grid, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`core.zone_grid.ZoneGrid.pairs` in C (the grid's own arrays, the same pairs in the same order)."""
+    q = _f64(q)
+    dense = grid.cells is None
+    tables = [_i64(grid.first), None, None, None] if dense else [None, *map(_i64, (grid.cells, grid.start, grid.stop))]
+    table = (*map(_ptr, tables), 0 if dense else len(grid.cells))  # tables holds the arrays during the call
+    keep = [_f64(grid.origin), _i64(grid.dims), _f64(grid.entry_p), _f64(grid.entry_zone2), _i64(grid.records)]
+    args = (_ptr(q), len(q), _ptr(keep[0]), float(grid.cell), _ptr(keep[1]), *table, *map(_ptr, keep[2:]))
+    capacity = 4 * len(q) + 64
+    while True:
+        rows, records = np.empty(capacity, np.int64), np.empty(capacity, np.int64)
+        count = lib.pdic_zone_pairs(*args, _ptr(rows), _ptr(records), capacity)
+        if count <= capacity:
+            return rows[:count], records[:count]
+        capacity = count
+
+
+def ward_accept(lib, p, n, p_k, n_k, R, R_add: float, a: float, rows, rec, floor: float, in_front: float):
+    """:func:`core.ward.ward_weight`, :func:`core.ward.accepted` and the squared distance over the pairs
+    (rows, rec) of points p, n against records p_k, n_k, R (+ R_add): (w, ok, d2), each (pairs,)."""
+    P = len(rows)
+    w, ok, d2 = np.empty(P), np.empty(P, np.uint8), np.empty(P)
+    arrays = [_f64(p), _f64(n), _f64(p_k), _f64(n_k), _f64(R), _i64(rows), _i64(rec)]
+    lib.pdic_ward_accept(*map(_ptr, arrays[:5]), float(R_add), 1.0 / a, float(floor), float(in_front),
+                         _ptr(arrays[5]), _ptr(arrays[6]), P, _ptr(w), _ptr(ok), _ptr(d2))
+    return w, ok.view(bool), d2
+
+
+def equation3_sums(lib, m: int, p, n, at, p_k, n_k, E_k, grad_r, grad_t, zone, rows, rec, w):
+    """The sums of Equation 3 over accepted pairs, as :func:`core.interpolation.equation3_sums`:
+    (num (m, c), den (m,), smallest (m,) or None without ``zone``)."""
+    channels = E_k.shape[1]
+    num, den = np.zeros((m, channels)), np.zeros(m)
+    smallest = None if zone is None else np.full(m, np.inf)
+    arrays = [_f64(p), _f64(n), None if at is None else _f64(at), _f64(p_k), _f64(n_k), _f64(E_k),
+              None if grad_r is None else _f64(grad_r), None if grad_t is None else _f64(grad_t)]
+    zone = None if zone is None else _f64(zone)
+    rows, rec, w = _i64(rows), _i64(rec), _f64(w)
+    lib.pdic_equation3_sums(*map(_ptr, arrays), channels, _ptr(zone), _ptr(rows), _ptr(rec), _ptr(w), len(rows),
+                            _ptr(num), _ptr(den), _ptr(smallest))
+    return num, den, smallest
+
+
+def bilinear_rgb(lib, pixels: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """:func:`core.albedo.sample_texture`'s bilinear blend in C over (H, W, 3) float32 pixels at finite uv
+    (n, 2): (n, 3) float32, the same values."""
+    px, uv = np.ascontiguousarray(pixels, np.float32), _f64(uv)
+    out = np.empty((len(uv), 3), np.float32)
+    lib.pdic_bilinear_rgb(_ptr(px), px.shape[0], px.shape[1], _ptr(uv), len(uv), _ptr(out))
+    return out
+
+
+def _self_check(lib) -> str | None:
+    """Compare the library with the numpy functions on a small random problem, to the bit.
+
+    A library built wrong for its platform (fused multiply-adds, another calling convention) must not
+    change a bake: then the numpy code runs instead."""
+    from .interpolation import equation3_sums as sums_numpy
+    from .ward import DENOMINATOR_FLOOR, IN_FRONT, accepted, ward_weight
+    from .vectors import dots
+    from .zone_grid import ZoneGrid
+
+    rng = np.random.default_rng(7)
+    K, m = 64, 200
+    p_k = rng.uniform(-1, 1, (K, 3))
+    n_k = rng.normal(size=(K, 3))
+    n_k /= np.linalg.norm(n_k, axis=1, keepdims=True)
+    R = rng.uniform(0.05, 0.4, K)
+    q = rng.uniform(-1.2, 1.2, (m, 3))
+    n = rng.normal(size=(m, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    for cell_per_zone in (1.0, 3.0):
+        grid = ZoneGrid(p_k, R, cell_per_zone)
+        for sparse in (False, True):
+            if sparse and grid.cells is None:  # the sorted-table branch over the same cells
+                grid = copy.copy(grid)
+                key = np.flatnonzero(np.diff(grid.first))
+                grid.cells, grid.start, grid.stop = key, grid.first[key], grid.first[key + 1]
+            want = grid.pairs_numpy(q)
+            got = zone_pairs(lib, grid, q)
+            if not all(np.array_equal(x, y) for x, y in zip(want, got)):
+                return "zone pairs differ"
+    rows, rec = want
+    w0 = ward_weight(q[rows], n[rows], p_k[rec], n_k[rec], R[rec] + 0.01)
+    ok0 = accepted(w0, 1.5, q[rows], n[rows], p_k[rec], n_k[rec], R[rec] + 0.01)
+    d = q[rows] - p_k[rec]
+    w, ok, d2 = ward_accept(lib, q, n, p_k, n_k, R, 0.01, 1.5, rows, rec, DENOMINATOR_FLOOR, IN_FRONT)
+    if not (np.array_equal(w, w0) and np.array_equal(ok, ok0) and np.array_equal(d2, dots(d, d))):
+        return "Ward weights differ"
+    E_k = rng.uniform(0, 2, (K, 3))
+    g_r, g_t = rng.normal(size=(K, 3, 3)), rng.normal(size=(K, 3, 3))
+    at = q[rows] + rng.normal(scale=0.01, size=(len(rows), 3))
+    for args in ((None, g_r, g_t, R), (at, g_r, g_t, None), (None, None, None, R)):
+        want = sums_numpy(m, q, n, args[0], p_k, n_k, E_k, args[1], args[2], args[3], rows, rec, w0)
+        got = equation3_sums(lib, m, q, n, args[0], p_k, n_k, E_k, args[1], args[2], args[3], rows, rec, w0)
+        if not all((x is None and y is None) or np.array_equal(x, y) for x, y in zip(want, got)):
+            return "Equation 3's sums differ"
+    return _self_check_texture(lib, rng)
+
+
+def _self_check_texture(lib, rng) -> str | None:
+    from .albedo import bilinear_numpy
+
+    pixels = rng.random((5, 7, 3), dtype=np.float32)
+    uv = rng.uniform(-3, 3, (300, 2))
+    if not np.array_equal(bilinear_numpy(pixels, uv), bilinear_rgb(lib, pixels, uv)):
+        return "texture samples differ"
+    return None

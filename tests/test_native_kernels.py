@@ -1,0 +1,159 @@
+"""The compiled kernels of Equation 3 (core/native/pdic_native.c) give the numpy code's results to the bit.
+
+The library is built by tools/setup.sh with this machine's C compiler; these tests run the real one.
+Each kernel is compared with the numpy function it replaces on inputs made to expose a different
+order of operations (magnitudes over many decades, NaN and far-away points), and a whole Final bake
+with the library against one with the numpy kernels.
+"""
+import copy
+
+import numpy as np
+import pytest
+
+from pdic.core import native_kernels
+from pdic.core.albedo import bilinear_numpy
+from pdic.core.interpolation import equation3_sums, ward_pairs
+from pdic.core.pipeline import bake
+from pdic.core.settings import preset
+from pdic.core.vectors import dots
+from pdic.core.ward import DENOMINATOR_FLOOR, IN_FRONT
+from pdic.core.zone_grid import ZoneGrid
+
+from scenes import box_on_ground, lamp_box
+
+LIB = native_kernels.library()
+
+
+def test_the_library_is_built_and_passes_its_check():
+    assert LIB is not None, f"Equation 3 runs in numpy here: {native_kernels.status()} (tools/build_native.py)"
+    assert native_kernels.status().startswith("compiled (pdic_native-")
+
+
+def _unit(v):
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def _records(rng, K):
+    p_k = rng.uniform(-10, 10, (K, 3)) * 10.0 ** rng.uniform(-3, 1, (K, 1))
+    return p_k, _unit(rng.normal(size=(K, 3))), 10.0 ** rng.uniform(-2.5, 0.5, K)
+
+
+def _points(rng, m, p_k):
+    q = p_k[rng.integers(0, len(p_k), m)] + rng.normal(scale=0.3, size=(m, 3))
+    q[::97] = np.nan
+    q[1::97] = [1e300, 0.0, 0.0]
+    q[2::97] = np.inf
+    return q, _unit(rng.normal(size=(m, 3)))
+
+
+@pytest.mark.parametrize("cell_per_zone", [1.0, 3.0])
+@pytest.mark.parametrize("sparse", [False, True])
+def test_zone_pairs_equal_numpy(cell_per_zone, sparse):
+    rng = np.random.default_rng(11)
+    p_k, _, R = _records(rng, 3000)
+    q, _ = _points(rng, 20000, p_k)
+    grid = ZoneGrid(p_k, R, cell_per_zone)
+    if sparse and grid.cells is None:  # the sorted table ZoneGrid uses for sparse cells, over the same cells
+        grid = copy.copy(grid)
+        key = np.flatnonzero(np.diff(grid.first))
+        grid.cells, grid.start, grid.stop = key, grid.first[key], grid.first[key + 1]
+    rows, rec = native_kernels.zone_pairs(LIB, grid, q)
+    want_rows, want_rec = grid.pairs_numpy(q)
+    assert len(rows) > 20000
+    assert np.array_equal(rows, want_rows) and np.array_equal(rec, want_rec)
+
+
+def test_ward_weights_and_acceptance_equal_numpy():
+    rng = np.random.default_rng(12)
+    p_k, n_k, R = _records(rng, 2000)
+    q, n = _points(rng, 10000, p_k)
+    n[5::101] = np.nan  # a broken normal: NaN weight, never accepted, in both
+    rows, rec = ZoneGrid(p_k, R * 1.5).pairs_numpy(q)
+    for R_add in (0.0, 0.013):
+        got = native_kernels.ward_accept(LIB, q, n, p_k, n_k, R, R_add, 1.5, rows, rec, DENOMINATOR_FLOOR, IN_FRONT)
+        want = ward_pairs(q, n, p_k, n_k, R, R_add, 1.5, rows, rec)
+        assert 0 < got[1].sum() < len(rows)
+        for x, y in zip(got, want):
+            assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=True)
+
+
+@pytest.mark.parametrize("channels", [3, 6])
+def test_equation3_sums_equal_numpy(channels):
+    rng = np.random.default_rng(13)
+    K, m = 1500, 8000
+    p_k, n_k, R = _records(rng, K)
+    q, n = _points(rng, m, p_k)
+    rows, rec = ZoneGrid(p_k, R).pairs_numpy(q)
+    w = 10.0 ** rng.uniform(-3, 6, len(rows))
+    E_k = rng.uniform(0, 5, (K, channels)) * 10.0 ** rng.uniform(-4, 4, (K, 1))
+    g_r, g_t = (rng.normal(size=(K, channels, 3)) * 10.0 ** rng.uniform(-3, 3, (K, 1, 1)) for _ in range(2))
+    at = np.take(q, rows, axis=0) + rng.normal(scale=1e-3, size=(len(rows), 3))
+    for args in ((None, g_r, g_t, R), (at, g_r, g_t, None), (None, None, None, R), (None, g_r, None, None)):
+        got = native_kernels.equation3_sums(LIB, m, q, n, args[0], p_k, n_k, E_k, *args[1:], rows, rec, w)
+        want = equation3_sums(m, q, n, args[0], p_k, n_k, E_k, *args[1:], rows, rec, w)
+        assert (got[0] == 0).any() and (got[0] > 0).any()  # some estimates clamped at zero, some not
+        for x, y in zip(got, want):
+            assert (x is None and y is None) or np.array_equal(x, y)
+
+
+def test_bilinear_texture_samples_equal_numpy():
+    rng = np.random.default_rng(16)
+    for H, W in ((1, 1), (3, 5), (64, 48)):
+        pixels = rng.random((H, W, 3), dtype=np.float32) * 10.0 ** rng.uniform(-3, 3, (H, W, 1)).astype(np.float32)
+        uv = rng.uniform(-50, 50, (20000, 2))
+        uv[::3] = rng.uniform(0, 1, (len(uv[::3]), 2))
+        assert np.array_equal(native_kernels.bilinear_rgb(LIB, pixels, uv), bilinear_numpy(pixels, uv))
+
+
+def test_dots_sum_left_to_right():
+    a, b = np.array([[1e16, 1.0, -1e16]]), np.ones((1, 3))
+    assert dots(a, b)[0] == 0.0  # (1e16 + 1) - 1e16: the 1 is lost; einsum's (a0 + a2) + a1 would keep it
+
+
+@pytest.mark.parametrize("scene, quality", [(lambda: lamp_box(24), "FINAL"), (lambda: box_on_ground(12), "FINAL"),
+                                            (lambda: lamp_box(24), "PREVIEW")])
+def test_a_bake_with_the_library_equals_one_without_to_the_bit(monkeypatch, scene, quality):
+    settings = preset(quality, photons=6000, max_bounces=4, threads=2, hemisphere_theta=6, hemisphere_phi=12)
+    compiled = bake(scene(), settings)
+    monkeypatch.setattr(native_kernels, "library", lambda: None)
+    numpy_only = bake(scene(), settings)
+    assert compiled.stats["kernels"].startswith("compiled")
+    assert sum(float(E.sum()) for E in compiled.indirect.values()) > 0
+    for target, E in compiled.lightmaps.items():
+        assert np.array_equal(E, numpy_only.lightmaps[target]), target
+        assert np.array_equal(compiled.indirect[target], numpy_only.indirect[target]), target
+
+
+def test_a_missing_library_leaves_numpy_and_says_why(monkeypatch, tmp_path):
+    monkeypatch.setattr(native_kernels, "NATIVE_DIR", tmp_path)
+    monkeypatch.setattr(native_kernels, "_status", None)
+    monkeypatch.setattr(native_kernels, "_lib", None)
+    assert native_kernels.library() is None
+    assert native_kernels.status().startswith("numpy (no compiled kernels for linux-x64")
+    # and the lookup still works
+    rng = np.random.default_rng(3)
+    p_k, _, R = _records(rng, 50)
+    assert len(ZoneGrid(p_k, R).pairs(p_k)[0]) >= 50
+
+
+def test_a_library_that_gives_other_numbers_is_refused(monkeypatch):
+    """A build that rounds otherwise (fused multiply-adds, say) fails the check at load: numpy runs."""
+    exact = native_kernels.ward_accept
+
+    def rounded_otherwise(*args):
+        w, ok, d2 = exact(*args)
+        return np.nextafter(w, np.inf), ok, d2
+
+    monkeypatch.setattr(native_kernels, "ward_accept", rounded_otherwise)
+    monkeypatch.setattr(native_kernels, "_status", None)
+    monkeypatch.setattr(native_kernels, "_lib", None)
+    assert native_kernels.library() is None
+    assert "failed its check: Ward weights differ" in native_kernels.status()
+
+
+def test_platform_names_follow_blender():
+    assert native_kernels.platform_name("Linux", "x86_64") == "linux-x64"
+    assert native_kernels.platform_name("Windows", "AMD64") == "windows-x64"
+    assert native_kernels.platform_name("Darwin", "arm64") == "macos-arm64"
+    assert native_kernels.library_path("windows-x64").name == "pdic_native-windows-x64.dll"
+    assert native_kernels.library_path("macos-arm64").name == "pdic_native-macos-arm64.dylib"
