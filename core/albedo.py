@@ -31,6 +31,15 @@ def albedo(scene: Scene, triangles: np.ndarray, barycentric: np.ndarray) -> np.n
     barycentric = np.asarray(barycentric, dtype=np.float64)
     if len(triangles) and (triangles.min() < 0 or triangles.max() >= scene.geometry.count):
         raise IndexError(f"albedo: triangle index out of range [0, {scene.geometry.count})")
+    lib = native_kernels.library()
+    if lib is not None:
+        return native_kernels.albedo(lib, scene, triangles, barycentric)
+    return albedo_numpy(scene, triangles, barycentric)
+
+
+def albedo_numpy(scene: Scene, triangles: np.ndarray, barycentric: np.ndarray) -> np.ndarray:
+    """:func:`albedo` in numpy for triangle indices in range (the fallback of :mod:`core.native_kernels`,
+    and its reference)."""
     material = scene.geometry.material[triangles]
     out = scene.materials.base_color.astype(np.float32, copy=False)[material]
     texture = scene.materials.texture[material]
@@ -50,7 +59,7 @@ def albedo(scene: Scene, triangles: np.ndarray, barycentric: np.ndarray) -> np.n
     uv += u * uv_corner[:, 1]
     uv += v * uv_corner[:, 2]
     for start, stop in zip(starts, [*starts[1:], len(textured)]):
-        out[textured[start:stop]] = np.clip(sample_texture(scene.textures[keys[start]], uv[start:stop]), 0.0, 1.0)
+        out[textured[start:stop]] = np.clip(read_texture(scene.textures[keys[start]], uv[start:stop], None), 0.0, 1.0)
     return out
 
 
@@ -66,6 +75,11 @@ def sample_texture(texture: Texture, uv: np.ndarray) -> np.ndarray:
     -------
     (n, 3) float32 linear colour.
     """
+    return read_texture(texture, uv, native_kernels.library())
+
+
+def read_texture(texture: Texture, uv: np.ndarray, lib) -> np.ndarray:
+    """:func:`sample_texture` with the compiled kernels ``lib``, or in numpy (None)."""
     px = texture.pixels
     H, W = px.shape[:2]
     uv = np.nan_to_num(np.asarray(uv, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
@@ -75,7 +89,6 @@ def sample_texture(texture: Texture, uv: np.ndarray) -> np.ndarray:
         return px[j, i]
     if texture.interpolation != "Linear":
         raise ValueError(f"texture {texture.name!r}: unsupported interpolation {texture.interpolation!r}")
-    lib = native_kernels.library()
     if lib is not None and px.dtype == np.float32:
         return native_kernels.bilinear_rgb(lib, px, uv)
     return bilinear_numpy(px, uv)

@@ -1,10 +1,11 @@
-"""Compiled kernels of Equation 3 and of texture reads, with the numpy code they replace as the fallback.
+"""Compiled kernels of Equation 3 and of the albedo at hits, with the numpy code they replace as the fallback.
 
 Equation 3 is looked up at every texel sample, at every gathering ray's hit and at every hit-grid cell,
-and its numpy form spends most of its time making arrays per (point, record) pair; textures are read at
-every photon and gathering hit. The loops in ``core/native/pdic_native.c`` do the same floating-point operations in the same order as the numpy
-functions they stand for (named in their docstrings below), so a bake gives the same light maps to the
-bit either way (tests/test_native_kernels.py; ``tools/golden.py``).
+and its numpy form spends most of its time making arrays per (point, record) pair; the albedo is read at
+every photon and gathering hit. The loops in ``core/native/pdic_native.c`` do the same floating-point
+operations in the same order as the numpy functions they stand for (named in their docstrings below),
+so a bake gives the same light maps to the bit either way (tests/test_native_kernels.py;
+``tools/golden.py``).
 
 The library is our own C, built per platform by ``tools/build_native.py`` (the host's C compiler for a
 checkout, zig for the extension's three platforms). It is optional: when the platform's library is
@@ -23,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-VERSION = 2
+VERSION = 3
 """The C library's ``pdic_native_version()`` this module calls; a library of another version is not used."""
 NATIVE_DIR = Path(__file__).resolve().parent / "native"
 SUFFIX = {"linux": ".so", "windows": ".dll", "macos": ".dylib"}
@@ -48,13 +49,31 @@ _I64 = ctypes.c_int64
 _F64 = ctypes.c_double
 _PTR = ctypes.c_void_p
 
-_lock = threading.Lock()
+_lock = threading.RLock()
 _lib = None
 _status = None
+_loading = False
 
 
 def _ptr(a: np.ndarray | None):
     return None if a is None else a.ctypes.data_as(_PTR)
+
+
+def _declare(lib) -> None:
+    """The kernels' C signatures."""
+    lib.pdic_zone_pairs.restype = _I64
+    lib.pdic_zone_pairs.argtypes = [_PTR, _I64, _PTR, _F64, _PTR, _PTR, _PTR, _PTR, _PTR, _I64, _PTR, _PTR,
+                                    _PTR, _PTR, _PTR, _I64]
+    lib.pdic_ward_accept.restype = None
+    lib.pdic_ward_accept.argtypes = [_PTR, _PTR, _PTR, _PTR, _PTR, _F64, _F64, _F64, _F64, _PTR, _PTR, _I64,
+                                     _PTR, _PTR, _PTR]
+    lib.pdic_equation3_sums.restype = None
+    lib.pdic_equation3_sums.argtypes = [_PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _I64, _PTR, _PTR, _PTR,
+                                        _PTR, _I64, _PTR, _PTR, _PTR]
+    lib.pdic_bilinear_rgb.restype = None
+    lib.pdic_bilinear_rgb.argtypes = [_PTR, _I64, _I64, _PTR, _I64, _PTR]
+    lib.pdic_albedo.restype = None
+    lib.pdic_albedo.argtypes = [_PTR] * 10 + [_I64, _PTR]
 
 
 def _load():
@@ -67,33 +86,33 @@ def _load():
         lib = ctypes.CDLL(str(path))
     except OSError as exc:
         return None, f"numpy ({path.name} did not load: {exc})"
-    lib.pdic_native_version.restype = _I64
-    if lib.pdic_native_version() != VERSION:
-        return None, f"numpy ({path.name} is version {lib.pdic_native_version()}, this code needs {VERSION})"
-    lib.pdic_zone_pairs.restype = _I64
-    lib.pdic_zone_pairs.argtypes = [_PTR, _I64, _PTR, _F64, _PTR, _PTR, _PTR, _PTR, _PTR, _I64, _PTR, _PTR,
-                                    _PTR, _PTR, _PTR, _I64]
-    lib.pdic_ward_accept.restype = None
-    lib.pdic_ward_accept.argtypes = [_PTR, _PTR, _PTR, _PTR, _PTR, _F64, _F64, _F64, _F64, _PTR, _PTR, _I64,
-                                     _PTR, _PTR, _PTR]
-    lib.pdic_equation3_sums.restype = None
-    lib.pdic_equation3_sums.argtypes = [_PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _I64, _PTR, _PTR, _PTR,
-                                        _PTR, _I64, _PTR, _PTR, _PTR]
-    lib.pdic_bilinear_rgb.restype = None
-    lib.pdic_bilinear_rgb.argtypes = [_PTR, _I64, _I64, _PTR, _I64, _PTR]
-    problem = _self_check(lib)
+    try:
+        lib.pdic_native_version.restype = _I64
+        if lib.pdic_native_version() != VERSION:
+            return None, f"numpy ({path.name} is version {lib.pdic_native_version()}, this code needs {VERSION})"
+        _declare(lib)
+        problem = _self_check(lib)
+    except Exception as exc:  # a library this code cannot call must not stop a bake: numpy runs instead
+        problem = f"{type(exc).__name__}: {exc}"
     if problem:
         return None, f"numpy ({path.name} failed its check: {problem})"
     return lib, f"compiled ({path.name})"
 
 
 def library():
-    """The loaded library, or None (then :func:`status` says why); loaded and checked once."""
-    global _lib, _status
+    """The loaded library, or None (then :func:`status` says why); loaded and checked once. While the check
+    runs, the numpy code it compares with gets None here (the lock is the loading thread's own)."""
+    global _lib, _status, _loading
     if _status is None:
         with _lock:
+            if _loading:
+                return None
             if _status is None:
-                _lib, _status = _load()
+                _loading = True
+                try:
+                    _lib, _status = _load()
+                finally:
+                    _loading = False
     return _lib
 
 
@@ -163,6 +182,24 @@ def bilinear_rgb(lib, pixels: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return out
 
 
+def albedo(lib, scene, triangles: np.ndarray, barycentric: np.ndarray) -> np.ndarray:
+    """:func:`core.albedo.albedo` in C for triangle indices already checked: (h, 3) float32, the same values."""
+    g, mats, textures = scene.geometry, scene.materials, scene.textures
+    pixels = [np.ascontiguousarray(t.pixels, np.float32) for t in textures]
+    table = (ctypes.c_void_p * max(len(pixels), 1))(*[p.ctypes.data for p in pixels])
+    arrays = [np.ascontiguousarray(g.material, np.int32), np.ascontiguousarray(mats.base_color, np.float32),
+              np.ascontiguousarray(mats.texture, np.int32), np.ascontiguousarray(g.uvs, np.float32), None,
+              np.array([p.shape[0] for p in pixels] or [1], np.int64),
+              np.array([p.shape[1] for p in pixels] or [1], np.int64),
+              np.array([t.interpolation == "Linear" for t in textures] or [1], np.uint8),
+              _i64(triangles), _f64(barycentric)]
+    out = np.empty((len(triangles), 3), np.float32)
+    ptrs = [_ptr(a) for a in arrays]
+    ptrs[4] = ctypes.cast(table, _PTR)
+    lib.pdic_albedo(*ptrs, len(triangles), _ptr(out))
+    return out
+
+
 def _self_check(lib) -> str | None:
     """Compare the library with the numpy functions on a small random problem, to the bit.
 
@@ -218,4 +255,28 @@ def _self_check_texture(lib, rng) -> str | None:
     uv = rng.uniform(-3, 3, (300, 2))
     if not np.array_equal(bilinear_numpy(pixels, uv), bilinear_rgb(lib, pixels, uv)):
         return "texture samples differ"
+    from .albedo import albedo_numpy
+    scene = _textured_scene(rng, 40)
+    triangles = rng.integers(0, 40, 400)
+    bary = rng.uniform(-0.2, 1.2, (400, 2))
+    if not np.array_equal(albedo_numpy(scene, triangles, bary), albedo(lib, scene, triangles, bary)):
+        return "albedos differ"
     return None
+
+
+def _textured_scene(rng, T: int):
+    """T random triangles with three materials: a constant colour, a bilinear and a closest-texel texture of
+    a few pixels, some brighter than 1 (for the self-check and the tests)."""
+    from .scene import Geometry, Materials, Scene, Texture
+
+    tris = rng.normal(size=(T, 3, 3))
+    normal = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    normals = np.repeat((normal / np.linalg.norm(normal, axis=1, keepdims=True))[:, None], 3, axis=1)
+    geometry = Geometry(tris, normals.astype(np.float32),
+                        rng.uniform(-3, 3, (T, 3, 2)).astype(np.float32), rng.integers(0, 3, T).astype(np.int32),
+                        np.full(T, -1, np.int32))
+    materials = Materials(["plain", "linear", "closest"], rng.random((3, 3)).astype(np.float32),
+                          np.array([-1, 0, 1], np.int32), np.zeros((3, 3), np.float32))
+    textures = [Texture("linear", rng.uniform(0, 1.5, (5, 7, 3))),
+                Texture("closest", rng.uniform(0, 1.5, (3, 4, 3)), "Closest")]
+    return Scene(geometry, materials, tuple(textures))

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from pdic.core import native_kernels
-from pdic.core.albedo import bilinear_numpy
+from pdic.core.albedo import albedo_numpy, bilinear_numpy
 from pdic.core.interpolation import equation3_sums, ward_pairs
 from pdic.core.pipeline import bake
 from pdic.core.settings import preset
@@ -103,6 +103,19 @@ def test_bilinear_texture_samples_equal_numpy():
         uv = rng.uniform(-50, 50, (20000, 2))
         uv[::3] = rng.uniform(0, 1, (len(uv[::3]), 2))
         assert np.array_equal(native_kernels.bilinear_rgb(LIB, pixels, uv), bilinear_numpy(pixels, uv))
+
+
+def test_albedos_equal_numpy():
+    rng = np.random.default_rng(17)
+    scene = native_kernels._textured_scene(rng, 500)
+    triangles = rng.integers(0, 500, 30000)
+    bary = rng.uniform(-0.5, 1.5, (30000, 2)) * 10.0 ** rng.uniform(-1, 3, (30000, 1))
+    bary[::101] = np.nan  # a NaN UV reads the texture at 0, in both
+    got = native_kernels.albedo(LIB, scene, triangles, bary)
+    want = albedo_numpy(scene, triangles, bary)
+    textured = scene.materials.texture[scene.geometry.material[triangles]] >= 0
+    assert 0.1 < textured.mean() < 0.9 and (got[textured] == 1.0).any()  # textures brighter than 1 clipped
+    assert got.dtype == want.dtype == np.float32 and np.array_equal(got, want)
 
 
 def test_dots_sum_left_to_right():

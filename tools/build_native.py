@@ -44,7 +44,8 @@ ZIG_TARGETS = {
     "macos-x64": "x86_64-macos.11.0",
 }
 ZIGLANG = "ziglang==0.15.1"
-"""The zig release these builds are made with (PyPI's ziglang wheels carry the whole toolchain, ~50 MB)."""
+"""The zig release these builds are made with (PyPI's ziglang wheel carries the whole toolchain: 94 MB,
+380 MB installed, once per machine)."""
 
 
 def up_to_date(out: Path) -> bool:

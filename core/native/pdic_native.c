@@ -1,9 +1,9 @@
-/* Compiled kernels of Equation 3 (paper Equations 1 to 3) for core/native_kernels.py.
+/* Compiled kernels of Equation 3 (paper Equations 1 to 3) and of the albedo at hits, for core/native_kernels.py.
  *
  * Each function is the loop form of a numpy function in core/ (named in its comment) and does
  * the same floating-point operations in the same order, so its results are identical to the bit:
  * built with -ffp-contract=off (no fused multiply-adds) and without -ffast-math. Arrays are
- * C-contiguous float64 / int64; the caller checks shapes and dtypes. No allocation, no globals:
+ * C-contiguous, of the types each signature names; the caller checks shapes, dtypes and indices. No allocation, no globals:
  * safe to call from several threads at once (ctypes releases the GIL during the call).
  */
 #include <math.h>
@@ -16,7 +16,7 @@
 #endif
 
 /* Bumped whenever a signature changes: core/native_kernels.py refuses a library of another version. */
-PDIC_EXPORT int64_t pdic_native_version(void) { return 2; }
+PDIC_EXPORT int64_t pdic_native_version(void) { return 3; }
 
 /* core.zone_grid.ZoneGrid.pairs: every (point, record) with |q - p_k|^2 <= zone_k^2, points in order,
  * each point's cell entries in order. Dense cell table: first (n_cells + 1), else the sorted occupied
@@ -133,28 +133,65 @@ static inline int64_t floor_mod(int64_t a, int64_t n) {
     return r < 0 ? r + n : r;
 }
 
+/* One bilinear read of an (H, W, 3) float32 image at (x, y) = uv * (W, H), as numpy's form below. */
+static void bilinear_at(const float *pixels, int64_t H, int64_t W, double u, double v, float *out) {
+    double x = u * (double)W - 0.5, y = v * (double)H - 0.5;
+    double x0 = floor(x), y0 = floor(y);
+    float fx = (float)(x - x0), fy = (float)(y - y0);
+    int64_t i0 = floor_mod((int64_t)x0, W), j0 = floor_mod((int64_t)y0, H);
+    int64_t i1 = (i0 + 1) % W, j1 = (j0 + 1) % H;
+    const float *p00 = pixels + 3 * (j0 * W + i0), *p01 = pixels + 3 * (j0 * W + i1);
+    const float *p10 = pixels + 3 * (j1 * W + i0), *p11 = pixels + 3 * (j1 * W + i1);
+    float gx = 1.0f - fx, gy = 1.0f - fy;
+    for (int c = 0; c < 3; ++c) {
+        float bottom = p00[c] * gx;
+        bottom += p01[c] * fx;
+        float top = p10[c] * gx;
+        top += p11[c] * fx;
+        bottom *= gy;
+        top *= fy;
+        out[c] = bottom + top;
+    }
+}
+
 /* core.albedo.sample_texture, bilinear ("Linear") with repeat, over an (H, W, 3) float32 image: the same
  * float32 blend as numpy's (weights rounded to float32 first, bottom and top rows, then between them).
  * uv (n, 2) float64 already free of NaN and inf; out (n, 3) float32. */
 PDIC_EXPORT void pdic_bilinear_rgb(const float *pixels, int64_t H, int64_t W, const double *uv, int64_t n,
                                    float *out) {
-    for (int64_t k = 0; k < n; ++k) {
-        double x = uv[2 * k] * (double)W - 0.5, y = uv[2 * k + 1] * (double)H - 0.5;
-        double x0 = floor(x), y0 = floor(y);
-        float fx = (float)(x - x0), fy = (float)(y - y0);
-        int64_t i0 = floor_mod((int64_t)x0, W), j0 = floor_mod((int64_t)y0, H);
-        int64_t i1 = (i0 + 1) % W, j1 = (j0 + 1) % H;
-        const float *p00 = pixels + 3 * (j0 * W + i0), *p01 = pixels + 3 * (j0 * W + i1);
-        const float *p10 = pixels + 3 * (j1 * W + i0), *p11 = pixels + 3 * (j1 * W + i1);
-        float gx = 1.0f - fx, gy = 1.0f - fy;
-        for (int c = 0; c < 3; ++c) {
-            float bottom = p00[c] * gx;
-            bottom += p01[c] * fx;
-            float top = p10[c] * gx;
-            top += p11[c] * fx;
-            bottom *= gy;
-            top *= fy;
-            out[3 * k + c] = bottom + top;
+    for (int64_t k = 0; k < n; ++k) bilinear_at(pixels, H, W, uv[2 * k], uv[2 * k + 1], out + 3 * k);
+}
+
+/* core.albedo.albedo for hits on triangles (h,) at Embree barycentrics (h, 2): the material's base colour,
+ * or its texture at the hit's interpolated UV (NaN and inf read as 0; "Closest" or bilinear), clipped to
+ * [0, 1]. material (T,) int32, base_color (M, 3) float32, texture_of (M,) int32 (-1: none), uvs (T, 3, 2)
+ * float32; per texture its pixels, height, width and whether it is bilinear. out (h, 3) float32. */
+PDIC_EXPORT void pdic_albedo(const int32_t *material, const float *base_color, const int32_t *texture_of,
+                             const float *uvs, const float *const *pixels, const int64_t *heights,
+                             const int64_t *widths, const uint8_t *linear, const int64_t *triangle,
+                             const double *barycentric, int64_t hits, float *out) {
+    for (int64_t h = 0; h < hits; ++h) {
+        int64_t t = triangle[h], m = material[t], k = texture_of[m];
+        float *o = out + 3 * h;
+        if (k < 0) {
+            for (int c = 0; c < 3; ++c) o[c] = base_color[3 * m + c];
+            continue;
         }
+        double u = barycentric[2 * h], v = barycentric[2 * h + 1], w = (1.0 - u) - v, st[2];
+        const float *uv = uvs + 6 * t;
+        for (int a = 0; a < 2; ++a) {
+            double x = w * (double)uv[a];
+            x += u * (double)uv[2 + a];
+            x += v * (double)uv[4 + a];
+            st[a] = isfinite(x) ? x : 0.0;  /* np.nan_to_num(nan=0, posinf=0, neginf=0) */
+        }
+        int64_t H = heights[k], W = widths[k];
+        if (linear[k]) {
+            bilinear_at(pixels[k], H, W, st[0], st[1], o);
+        } else {
+            int64_t i = floor_mod((int64_t)floor(st[0] * (double)W), W), j = floor_mod((int64_t)floor(st[1] * (double)H), H);
+            for (int c = 0; c < 3; ++c) o[c] = pixels[k][3 * (j * W + i) + c];
+        }
+        for (int c = 0; c < 3; ++c) o[c] = o[c] < 0.0f ? 0.0f : (o[c] > 1.0f ? 1.0f : o[c]);
     }
 }
