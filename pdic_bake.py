@@ -327,6 +327,8 @@ def print_report(report, total: float) -> None:
     for stage, seconds in report.stats.get("seconds", {}).items():
         print(f"  {stage:<24s} {seconds:8.3f}")
     print(f"  {'total':<24s} {total:8.3f}")
+    if "kernels" in report.stats:
+        print(f"kernels: {report.stats['kernels']}")
     print("light maps:")
     for e in report.objects:
         where = os.path.join(str(report.output.directory), e["image"]) if e["image"] else "(packed)"

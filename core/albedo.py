@@ -32,9 +32,9 @@ def albedo(scene: Scene, triangles: np.ndarray, barycentric: np.ndarray) -> np.n
     if len(triangles) and (triangles.min() < 0 or triangles.max() >= scene.geometry.count):
         raise IndexError(f"albedo: triangle index out of range [0, {scene.geometry.count})")
     lib = native_kernels.library()
-    if lib is not None:
+    if lib is not None and all(t.interpolation in ("Linear", "Closest") for t in scene.textures):
         return native_kernels.albedo(lib, scene, triangles, barycentric)
-    return albedo_numpy(scene, triangles, barycentric)
+    return albedo_numpy(scene, triangles, barycentric)  # which names a texture of another interpolation
 
 
 def albedo_numpy(scene: Scene, triangles: np.ndarray, barycentric: np.ndarray) -> np.ndarray:

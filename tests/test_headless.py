@@ -86,6 +86,7 @@ def test_headless_bake_writes_images_manifest_and_preview(scene_blend, tmp_path)
     assert doc["stats"]["seconds_total"] > 0 and "addon_unwrap" in doc["stats"]["seconds"]
     # the report names stages, texel counts and output paths
     assert "stage times" in r.stdout and "32x32 texels" in r.stdout and str(out / "scene.PDIC_Floor.exr") in r.stdout
+    assert "kernels: compiled (pdic_native-" in r.stdout  # the headless bake says how Equation 3 ran
     # preview: the lit floor under the lamp is brighter than the unlit sky corner
     image = read_png(png)
     assert image.shape == (54, 96, 3)

@@ -164,6 +164,27 @@ def test_a_library_that_gives_other_numbers_is_refused(monkeypatch):
     assert "failed its check: Ward weights differ" in native_kernels.status()
 
 
+def test_a_library_whose_check_raises_is_not_used(monkeypatch):
+    """A library this code cannot call (a missing symbol, a wrong signature) leaves numpy, not a failed bake."""
+    def raising(lib):
+        raise AttributeError("undefined symbol: pdic_new_kernel")
+
+    monkeypatch.setattr(native_kernels, "_self_check", raising)
+    monkeypatch.setattr(native_kernels, "_status", None)
+    monkeypatch.setattr(native_kernels, "_lib", None)
+    assert native_kernels.library() is None
+    assert "failed its check: AttributeError: undefined symbol" in native_kernels.status()
+
+
+def test_the_numpy_code_the_check_runs_does_not_wait_for_the_library(monkeypatch):
+    """The check compares with numpy functions that ask for the library themselves: they get None."""
+    seen = []
+    monkeypatch.setattr(native_kernels, "_self_check", lambda lib: seen.append(native_kernels.library()))
+    monkeypatch.setattr(native_kernels, "_status", None)
+    monkeypatch.setattr(native_kernels, "_lib", None)
+    assert native_kernels.library() is not None and seen == [None]
+
+
 def test_platform_names_follow_blender():
     assert native_kernels.platform_name("Linux", "x86_64") == "linux-x64"
     assert native_kernels.platform_name("Windows", "AMD64") == "windows-x64"
