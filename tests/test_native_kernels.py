@@ -103,6 +103,9 @@ def test_bilinear_texture_samples_equal_numpy():
         uv = rng.uniform(-50, 50, (20000, 2))
         uv[::3] = rng.uniform(0, 1, (len(uv[::3]), 2))
         assert np.array_equal(native_kernels.bilinear_rgb(LIB, pixels, uv), bilinear_numpy(pixels, uv))
+    # A UV too large for an integer texel index reads some texel of the image, not memory past it.
+    far = native_kernels.bilinear_rgb(LIB, pixels, np.array([[1e300, -1e300], [-4e18, 9e18]]))
+    assert np.isfinite(far).all() and (far >= pixels.min()).all() and (far <= pixels.max() * (1 + 1e-6)).all()
 
 
 def test_albedos_equal_numpy():

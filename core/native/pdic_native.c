@@ -133,12 +133,19 @@ static inline int64_t floor_mod(int64_t a, int64_t n) {
     return r < 0 ? r + n : r;
 }
 
+/* A whole number of texels as an integer: beyond +-2^62 (a UV of ~1e15 repeats and more) the cast would be
+ * undefined in C; numpy's wraps there, so only such UVs read another texel than numpy's. */
+static inline int64_t texel_index(double v) {
+    const double limit = 4611686018427387904.0;
+    return (int64_t)(v < -limit ? -limit : (v > limit ? limit : v));
+}
+
 /* One bilinear read of an (H, W, 3) float32 image at (x, y) = uv * (W, H), as numpy's form below. */
 static void bilinear_at(const float *pixels, int64_t H, int64_t W, double u, double v, float *out) {
     double x = u * (double)W - 0.5, y = v * (double)H - 0.5;
     double x0 = floor(x), y0 = floor(y);
     float fx = (float)(x - x0), fy = (float)(y - y0);
-    int64_t i0 = floor_mod((int64_t)x0, W), j0 = floor_mod((int64_t)y0, H);
+    int64_t i0 = floor_mod(texel_index(x0), W), j0 = floor_mod(texel_index(y0), H);
     int64_t i1 = (i0 + 1) % W, j1 = (j0 + 1) % H;
     const float *p00 = pixels + 3 * (j0 * W + i0), *p01 = pixels + 3 * (j0 * W + i1);
     const float *p10 = pixels + 3 * (j1 * W + i0), *p11 = pixels + 3 * (j1 * W + i1);
@@ -189,7 +196,8 @@ PDIC_EXPORT void pdic_albedo(const int32_t *material, const float *base_color, c
         if (linear[k]) {
             bilinear_at(pixels[k], H, W, st[0], st[1], o);
         } else {
-            int64_t i = floor_mod((int64_t)floor(st[0] * (double)W), W), j = floor_mod((int64_t)floor(st[1] * (double)H), H);
+            int64_t i = floor_mod(texel_index(floor(st[0] * (double)W)), W);
+            int64_t j = floor_mod(texel_index(floor(st[1] * (double)H)), H);
             for (int c = 0; c < 3; ++c) o[c] = pixels[k][3 * (j * W + i) + c];
         }
         for (int c = 0; c < 3; ++c) o[c] = o[c] < 0.0f ? 0.0f : (o[c] > 1.0f ? 1.0f : o[c]);
