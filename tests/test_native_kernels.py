@@ -140,10 +140,15 @@ def test_a_bake_with_the_library_equals_one_without_to_the_bit(monkeypatch, scen
         assert np.array_equal(compiled.indirect[target], numpy_only.indirect[target]), target
 
 
-def test_a_missing_library_leaves_numpy_and_says_why(monkeypatch, tmp_path):
-    monkeypatch.setattr(native_kernels, "NATIVE_DIR", tmp_path)
+def _load_again(monkeypatch):
+    """Forget the loaded library (for this test only): the next library() loads and checks it again."""
     monkeypatch.setattr(native_kernels, "_status", None)
     monkeypatch.setattr(native_kernels, "_lib", None)
+
+
+def test_a_missing_library_leaves_numpy_and_says_why(monkeypatch, tmp_path):
+    monkeypatch.setattr(native_kernels, "NATIVE_DIR", tmp_path)
+    _load_again(monkeypatch)
     assert native_kernels.library() is None
     assert native_kernels.status().startswith("numpy (no compiled kernels for linux-x64")
     # and the lookup still works
@@ -161,8 +166,7 @@ def test_a_library_that_gives_other_numbers_is_refused(monkeypatch):
         return np.nextafter(w, np.inf), ok, d2
 
     monkeypatch.setattr(native_kernels, "ward_accept", rounded_otherwise)
-    monkeypatch.setattr(native_kernels, "_status", None)
-    monkeypatch.setattr(native_kernels, "_lib", None)
+    _load_again(monkeypatch)
     assert native_kernels.library() is None
     assert "failed its check: Ward weights differ" in native_kernels.status()
 
@@ -173,8 +177,7 @@ def test_a_library_whose_check_raises_is_not_used(monkeypatch):
         raise AttributeError("undefined symbol: pdic_new_kernel")
 
     monkeypatch.setattr(native_kernels, "_self_check", raising)
-    monkeypatch.setattr(native_kernels, "_status", None)
-    monkeypatch.setattr(native_kernels, "_lib", None)
+    _load_again(monkeypatch)
     assert native_kernels.library() is None
     assert "failed its check: AttributeError: undefined symbol" in native_kernels.status()
 
@@ -183,8 +186,7 @@ def test_the_numpy_code_the_check_runs_does_not_wait_for_the_library(monkeypatch
     """The check compares with numpy functions that ask for the library themselves: they get None."""
     seen = []
     monkeypatch.setattr(native_kernels, "_self_check", lambda lib: seen.append(native_kernels.library()))
-    monkeypatch.setattr(native_kernels, "_status", None)
-    monkeypatch.setattr(native_kernels, "_lib", None)
+    _load_again(monkeypatch)
     assert native_kernels.library() is not None and seen == [None]
 
 
