@@ -18,7 +18,7 @@ from .executor import TEXEL_CHUNK, slices
 from .irradiance_cache import IrradianceCache
 from .record_walls import beyond_wall_and_reach, wall_clearance
 from .vectors import dots
-from .ward import DENOMINATOR_FLOOR, IN_FRONT, accepted, record_estimate, ward_weight
+from .ward import accepted, record_estimate, ward_weight
 from .zone_grid import CELL_PER_ZONE, ZoneGrid, cell_per_zone
 
 
@@ -49,12 +49,15 @@ class CacheLookup:
     cell_per_zone: float = CELL_PER_ZONE
     """The zone grid's cell side in median zone radii (:func:`core.zone_grid.cell_per_zone`); the pairs
     found, and so E, do not depend on it."""
+    own_zone: np.ndarray = field(init=False, repr=False)
+    """(K,) a R_k, the records' zones before any gap-fill margin."""
     zone: np.ndarray = field(init=False, repr=False)
     clearance: np.ndarray = field(init=False, repr=False)
     grid: ZoneGrid = field(init=False, repr=False)
 
     def __post_init__(self):
-        self.zone = self.a * np.asarray(self.cache.R, dtype=np.float64) + self.margin
+        self.own_zone = self.a * np.asarray(self.cache.R, dtype=np.float64)
+        self.zone = self.own_zone + self.margin
         self.clearance = wall_clearance(self.cache.wall)
         self.grid = ZoneGrid(self.cache.p, self.zone, self.cell_per_zone)
         self.values = texel_values(self.cache, self.sky)
@@ -92,15 +95,14 @@ class CacheLookup:
         if lib is None:
             w, ok, d2 = ward_pairs(p, n, c.p, c.n, c.R, self.margin / self.a, self.a, rows, rec)
         else:
-            w, ok, d2 = native_kernels.ward_accept(lib, p, n, c.p, c.n, c.R, self.margin / self.a, self.a, rows,
-                                                   rec, DENOMINATOR_FLOOR, IN_FRONT)
+            w, ok, d2 = native_kernels.ward_accept(lib, p, n, c.p, c.n, c.R, self.margin / self.a, self.a, rows, rec)
 
         def pair_vectors(i):
             """(p, n at the points; p_k, n_k of the records; p - p_k) of pairs i."""
             p_r, p_k = np.take(p, rows[i], axis=0), np.take(c.p, rec[i], axis=0)
             return p_r, np.take(n, rows[i], axis=0), p_k, np.take(c.n, rec[i], axis=0), p_r - p_k
 
-        own_zone = self.a * c.R  # the records' zones before any gap-fill margin
+        own_zone = self.own_zone
         near_wall = ok & (d2 >= self.clearance[rec] ** 2)
         # deviation: wall-sectors: a point past a wall met by one sector ray only, in the wedge
         # between the polygons whose missed rays stand at the zone's radius and far away, counts

@@ -147,13 +147,15 @@ def zone_pairs(lib, grid, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         capacity = count
 
 
-def ward_accept(lib, p, n, p_k, n_k, R, R_add: float, a: float, rows, rec, floor: float, in_front: float):
+def ward_accept(lib, p, n, p_k, n_k, R, R_add: float, a: float, rows, rec):
     """:func:`core.ward.ward_weight`, :func:`core.ward.accepted` and the squared distance over the pairs
     (rows, rec) of points p, n against records p_k, n_k, R (+ R_add): (w, ok, d2), each (pairs,)."""
+    from .ward import DENOMINATOR_FLOOR, IN_FRONT  # here: tools/build_native.py loads this file on its own
+
     P = len(rows)
     w, ok, d2 = np.empty(P), np.empty(P, np.uint8), np.empty(P)
     arrays = [_f64(p), _f64(n), _f64(p_k), _f64(n_k), _f64(R), _i64(rows), _i64(rec)]
-    lib.pdic_ward_accept(*map(_ptr, arrays[:5]), float(R_add), 1.0 / a, float(floor), float(in_front),
+    lib.pdic_ward_accept(*map(_ptr, arrays[:5]), float(R_add), 1.0 / a, DENOMINATOR_FLOOR, IN_FRONT,
                          _ptr(arrays[5]), _ptr(arrays[6]), P, _ptr(w), _ptr(ok), _ptr(d2))
     return w, ok.view(bool), d2
 
@@ -206,7 +208,7 @@ def _self_check(lib) -> str | None:
     A library built wrong for its platform (fused multiply-adds, another calling convention) must not
     change a bake: then the numpy code runs instead."""
     from .interpolation import equation3_sums as sums_numpy
-    from .ward import DENOMINATOR_FLOOR, IN_FRONT, accepted, ward_weight
+    from .ward import accepted, ward_weight
     from .vectors import dots
     from .zone_grid import ZoneGrid
 
@@ -234,7 +236,7 @@ def _self_check(lib) -> str | None:
     w0 = ward_weight(q[rows], n[rows], p_k[rec], n_k[rec], R[rec] + 0.01)
     ok0 = accepted(w0, 1.5, q[rows], n[rows], p_k[rec], n_k[rec], R[rec] + 0.01)
     d = q[rows] - p_k[rec]
-    w, ok, d2 = ward_accept(lib, q, n, p_k, n_k, R, 0.01, 1.5, rows, rec, DENOMINATOR_FLOOR, IN_FRONT)
+    w, ok, d2 = ward_accept(lib, q, n, p_k, n_k, R, 0.01, 1.5, rows, rec)
     if not (np.array_equal(w, w0) and np.array_equal(ok, ok0) and np.array_equal(d2, dots(d, d))):
         return "Ward weights differ"
     E_k = rng.uniform(0, 2, (K, 3))

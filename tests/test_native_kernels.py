@@ -16,7 +16,6 @@ from pdic.core.interpolation import equation3_sums, ward_pairs
 from pdic.core.pipeline import bake
 from pdic.core.settings import preset
 from pdic.core.vectors import dots
-from pdic.core.ward import DENOMINATOR_FLOOR, IN_FRONT
 from pdic.core.zone_grid import ZoneGrid
 
 from scenes import box_on_ground, lamp_box
@@ -70,7 +69,7 @@ def test_ward_weights_and_acceptance_equal_numpy():
     n[5::101] = np.nan  # a broken normal: NaN weight, never accepted, in both
     rows, rec = ZoneGrid(p_k, R * 1.5).pairs_numpy(q)
     for R_add in (0.0, 0.013):
-        got = native_kernels.ward_accept(LIB, q, n, p_k, n_k, R, R_add, 1.5, rows, rec, DENOMINATOR_FLOOR, IN_FRONT)
+        got = native_kernels.ward_accept(LIB, q, n, p_k, n_k, R, R_add, 1.5, rows, rec)
         want = ward_pairs(q, n, p_k, n_k, R, R_add, 1.5, rows, rec)
         assert 0 < got[1].sum() < len(rows)
         for x, y in zip(got, want):

@@ -52,6 +52,19 @@ def up_to_date(out: Path) -> bool:
     return out.is_file() and out.stat().st_mtime >= SOURCE.stat().st_mtime
 
 
+def platform_flags(name: str) -> list[str]:
+    """Flags a shared library for Blender platform ``name`` needs beyond FLAGS."""
+    return [] if name.startswith("windows") else ["-fPIC", "-fvisibility=hidden"]
+
+
+def install(built: Path, out: Path) -> None:
+    """Move a built library to ``out`` by a rename: a running process may have the old one loaded."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(".tmp")
+    shutil.copy2(built, tmp)
+    os.replace(tmp, out)
+
+
 def build_host(force: bool = False) -> Path | None:
     """This machine's library with its own C compiler; None (and a message) when there is none."""
     out = library_path()
@@ -62,10 +75,11 @@ def build_host(force: bool = False) -> Path | None:
         print(f"build_native: no C compiler (set CC): {out.name} not built; PDIC bakes with numpy kernels",
               file=sys.stderr)
         return None
-    extra = [] if platform_name().startswith("windows") else ["-fPIC", "-fvisibility=hidden"]
-    tmp = out.with_suffix(".tmp")
-    subprocess.run([cc, *FLAGS, *extra, "-o", str(tmp), str(SOURCE), "-lm"], check=True)
-    os.replace(tmp, out)  # never rewrite a library a running process has loaded
+    with tempfile.TemporaryDirectory() as tmp:
+        built = Path(tmp) / out.name
+        subprocess.run([cc, *FLAGS, *platform_flags(platform_name()), "-o", str(built), str(SOURCE), "-lm"],
+                       check=True)
+        install(built, out)
     print(f"build_native: {out.relative_to(ROOT)} ({out.stat().st_size:,} bytes, {Path(cc).name})", file=sys.stderr)
     return out
 
@@ -85,16 +99,14 @@ def build_zig(name: str, folder: Path | None = None, force: bool = False) -> Pat
     out = library_path(name) if folder is None else Path(folder) / library_path(name).name
     if up_to_date(out) and not force:
         return out
-    extra = ["-s"] + ([] if name.startswith("windows") else ["-fPIC", "-fvisibility=hidden"])
+    extra = ["-s", *platform_flags(name)]
     if name.startswith("macos"):  # its id names itself, not the folder it was built in
         extra.append(f"-Wl,-install_name,@loader_path/{out.name}")
     with tempfile.TemporaryDirectory() as tmp:  # zig leaves an import library beside a .dll
         built = Path(tmp) / out.name
         cmd = [*zig_command(), "cc", "-target", ZIG_TARGETS[name], *FLAGS, *extra, "-o", str(built), str(SOURCE)]
         subprocess.run(cmd, check=True, cwd=tmp)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy2(built, out.with_suffix(".tmp"))
-        os.replace(out.with_suffix(".tmp"), out)  # never rewrite a library a running process has loaded
+        install(built, out)
     print(f"build_native: {out.name} ({out.stat().st_size:,} bytes, zig {ZIG_TARGETS[name]})", file=sys.stderr)
     return out
 

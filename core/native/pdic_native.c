@@ -1,10 +1,11 @@
-/* Compiled kernels of Equation 3 (paper Equations 1 to 3) and of the albedo at hits, for core/native_kernels.py.
+/* Compiled kernels of Equation 3 (paper Equations 1 to 3) and of the albedo at hits,
+ * for core/native_kernels.py.
  *
  * Each function is the loop form of a numpy function in core/ (named in its comment) and does
  * the same floating-point operations in the same order, so its results are identical to the bit:
  * built with -ffp-contract=off (no fused multiply-adds) and without -ffast-math. Arrays are
- * C-contiguous, of the types each signature names; the caller checks shapes, dtypes and indices. No allocation, no globals:
- * safe to call from several threads at once (ctypes releases the GIL during the call).
+ * C-contiguous, of the types each signature names; the caller checks shapes, dtypes and indices.
+ * No allocation, no globals: safe to call from several threads at once (ctypes releases the GIL).
  */
 #include <math.h>
 #include <stdint.h>
