@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-VERSION = 3
+VERSION = 4
 """The C library's ``pdic_native_version()`` this module calls; a library of another version is not used."""
 NATIVE_DIR = Path(__file__).resolve().parent / "native"
 SUFFIX = {"linux": ".so", "windows": ".dll", "macos": ".dylib"}
@@ -74,6 +74,12 @@ def _declare(lib) -> None:
     lib.pdic_bilinear_rgb.argtypes = [_PTR, _I64, _I64, _PTR, _I64, _PTR]
     lib.pdic_albedo.restype = None
     lib.pdic_albedo.argtypes = [_PTR] * 10 + [_I64, _PTR]
+    lib.pdic_cell_phi.restype = None
+    lib.pdic_cell_phi.argtypes = [_PTR, _I64, _I64, _I64, _PTR, _PTR]
+    lib.pdic_gathering_rays.restype = None
+    lib.pdic_gathering_rays.argtypes = [_PTR, _I64, _I64, _I64, _I64] + [_PTR] * 7 + [_F64, _PTR, _PTR, _PTR]
+    lib.pdic_tally_real_rays.restype = _I64
+    lib.pdic_tally_real_rays.argtypes = [_PTR, _I64, _I64] + [_PTR] * 12
 
 
 def _load():
@@ -202,6 +208,37 @@ def albedo(lib, scene, triangles: np.ndarray, barycentric: np.ndarray) -> np.nda
     return out
 
 
+def gathering_rays(lib, hemisphere, cells: np.ndarray, u: np.ndarray, frames, epsilon: float):
+    """:func:`core.real_rays.gathering_rays` in C, phi's cosine and sine by numpy: (w_local, d_world, origin),
+    each (n, 3), the same values."""
+    cells, u = _i64(cells), _f64(u)
+    n, C, N = len(cells), hemisphere.cells, hemisphere.columns
+    phi = np.empty(n)
+    lib.pdic_cell_phi(_ptr(cells), n, C, N, _ptr(u), _ptr(phi))
+    cos_phi, sin_phi = np.cos(phi), np.sin(phi)
+    p_k, t1, t2, normal = (_f64(v) for v in frames)
+    w, d, o = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+    lib.pdic_gathering_rays(_ptr(cells), n, C, N, hemisphere.rows, _ptr(u), _ptr(cos_phi), _ptr(sin_phi),
+                            _ptr(p_k), _ptr(t1), _ptr(t2), _ptr(normal), float(epsilon), _ptr(w), _ptr(d), _ptr(o))
+    return w, d, o
+
+
+def tally_real_rays(lib, sums, cells: np.ndarray, w_local: np.ndarray, hits, origin: np.ndarray,
+                    d_world: np.ndarray):
+    """:func:`core.real_rays.tally_real_rays` in C: the same sums in ``sums`` and the same (hit, q, inv_sum,
+    inv_n)."""
+    for a in (sums.rot_sum, sums.count, sums.r_min):  # written in place
+        if not (a.flags.c_contiguous and a.dtype == np.float64):
+            raise ValueError("CellSums arrays must be C-contiguous float64")
+    arrays = [_i64(cells), _f64(w_local), _f64(hits.t), _i64(hits.triangle), _f64(origin), _f64(d_world)]
+    n = len(cells)
+    inv_sum, inv_n = np.zeros(sums.B), np.zeros(sums.B)
+    hit, q = np.empty(n, np.int64), np.empty((n, 3))
+    h = lib.pdic_tally_real_rays(_ptr(arrays[0]), n, sums.H.cells, *map(_ptr, arrays[1:]), _ptr(sums.rot_sum),
+                                 _ptr(sums.count), _ptr(sums.r_min), _ptr(inv_sum), _ptr(inv_n), _ptr(hit), _ptr(q))
+    return hit[:h], q[:h], inv_sum, inv_n
+
+
 def _self_check(lib) -> str | None:
     """Compare the library with the numpy functions on a small random problem, to the bit.
 
@@ -247,7 +284,40 @@ def _self_check(lib) -> str | None:
         got = equation3_sums(lib, m, q, n, args[0], p_k, n_k, E_k, args[1], args[2], args[3], rows, rec, w0)
         if not all((x is None and y is None) or np.array_equal(x, y) for x, y in zip(want, got)):
             return "Equation 3's sums differ"
-    return _self_check_texture(lib, rng)
+    return _self_check_texture(lib, rng) or _self_check_gathering(lib, rng)
+
+
+def _self_check_gathering(lib, rng) -> str | None:
+    from . import real_rays
+    from .gather_cells import CellSums
+    from .hemisphere import Hemisphere
+    from .rays import Hits
+
+    H, B = Hemisphere(3, 5), 4
+    cells = rng.permutation(B * H.cells)[:40]
+    u = rng.random((40, 2))
+    n_k = rng.normal(size=(B, 3))
+    n_k /= np.linalg.norm(n_k, axis=1, keepdims=True)
+    t1 = np.cross(n_k, rng.normal(size=(B, 3)))
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    frames = (rng.normal(size=(B, 3)), t1, np.cross(n_k, t1), n_k)
+    want = real_rays.gathering_rays_numpy(H, cells, u, frames, 1e-4)
+    got = gathering_rays(lib, H, cells, u, frames, 1e-4)
+    if not all(np.array_equal(x, y) for x, y in zip(want, got)):
+        return "gathering rays differ"
+    w, d, o = want
+    t = np.where(rng.random(40) < 0.3, np.inf, rng.uniform(0.0, 2.0, 40))
+    hits = Hits(t, np.where(np.isinf(t), -1, rng.integers(0, 9, 40)), rng.random((40, 2)))
+    sums = [CellSums(B, H), CellSums(B, H)]
+    seen = rng.uniform(0.0, 2.0, len(sums[0].r_min[::3]))  # cells an earlier ray reached
+    for s in sums:
+        s.r_min[::3] = seen
+    want = real_rays.tally_real_rays_numpy(sums[0], cells, w, hits, o, d)
+    got = tally_real_rays(lib, sums[1], cells, w, hits, o, d)
+    same = all(np.array_equal(x, y) for x, y in zip(want, got))
+    if not (same and all(np.array_equal(getattr(sums[0], f), getattr(sums[1], f)) for f in ("rot_sum", "count", "r_min"))):
+        return "gathering tallies differ"
+    return None
 
 
 def _self_check_texture(lib, rng) -> str | None:

@@ -17,13 +17,16 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from . import native_kernels
 from .albedo import albedo as albedo_at
 from .constants import (CORNER_HEIGHT, CORNER_REACH, GAP_COS, GAP_WALK_BOUNCES, GAP_WALK_SURVIVAL, HIT_GRID_NEAR,
                         TRANSPARENT_MAX_LAYERS)
 from .direct import direct_irradiance
 from .gather_cells import CellSums
 from .photon_fallback import NOT_ASKED, NearestPhotons, lent_irradiance, nearest_photon_seen
+from .rays import offset_origins
 from .sampling import cosine_hemisphere, to_world
+from .vectors import dots
 from .zone_grid import spatial_order
 
 
@@ -59,27 +62,63 @@ def trace_real(caster, frames, cells: np.ndarray, sums: CellSums, rng: np.random
     sky-gathering), or None.
     Returns the hits and the per-record (B,) sums of 1 / hit distance and hit counts these rays added.
     """
-    p_k, t1, t2, n = frames
-    H = sums.H
-    C = H.cells
-    rec = cells // C
-    w_local = H.sample_cells(cells % C, rng.random((len(cells), 2)))
-    t1_rec, t2_rec, n_rec = (np.take(v, rec, axis=0) for v in (t1, t2, n))
-    d_world = w_local[:, :1] * t1_rec + w_local[:, 1:2] * t2_rec + w_local[:, 2:3] * n_rec
-    # Push the origins off the record's surface once; hit points are that origin plus t.
-    origin = caster.offset_origins(np.take(p_k, rec, axis=0), n_rec, d_world)
+    w_local, d_world, origin = gathering_rays(caster, sums.H, cells, rng.random((len(cells), 2)), frames)
     hits = caster.intersect(origin, d_world, unit=True)
-    sums.add_real_rays(cells, w_local, hits.t)
     if sky is not None:  # the rays that escaped; what glass passes: through_glass
         sums.add_sky(cells[~hits.hit], sky)
-    hit = np.flatnonzero(hits.hit)
-    d_hit = np.take(d_world, hit, axis=0)
-    found = RealHits(cells[hit], hits.triangle[hit], np.take(hits.barycentric, hit, axis=0),
-                     np.take(origin, hit, axis=0) + d_hit * hits.t[hit, None], d_hit, hits.t[hit])
-    inv_sum = np.bincount(rec[hit], weights=1.0 / np.maximum(hits.t[hit], 1e-300), minlength=sums.B)
-    inv_n = np.bincount(rec[hit], minlength=sums.B).astype(np.float64)
+    hit, q, inv_sum, inv_n = tally_real_rays(sums, cells, w_local, hits, origin, d_world)
+    found = RealHits(np.take(cells, hit), np.take(hits.triangle, hit), np.take(hits.barycentric, hit, axis=0), q,
+                     np.take(d_world, hit, axis=0), np.take(hits.t, hit))
     sums.add_distances(inv_sum, inv_n)
     return found, inv_sum, inv_n
+
+
+def gathering_rays(caster, hemisphere, cells: np.ndarray, u: np.ndarray, frames
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(w_local, d_world, origin), each (n, 3): a real ray through each flat cell (record * C + cell) at
+    uniform u (n, 2) in its cell (:meth:`Hemisphere.sample_cells`), in world space by its record's frame,
+    leaving from the record's point pushed off its surface (:meth:`RayCaster.offset_origins`; hit points are
+    that origin plus t). Compiled (:mod:`core.native_kernels`) when the library is there."""
+    lib = native_kernels.library()
+    if lib is not None:
+        return native_kernels.gathering_rays(lib, hemisphere, cells, u, frames, caster.epsilon)
+    return gathering_rays_numpy(hemisphere, cells, u, frames, caster.epsilon)
+
+
+def gathering_rays_numpy(hemisphere, cells: np.ndarray, u: np.ndarray, frames, epsilon: float
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`gathering_rays` in numpy (the compiled kernel's reference)."""
+    p_k, t1, t2, n = frames
+    C = hemisphere.cells
+    rec = cells // C
+    w_local = hemisphere.sample_cells(cells % C, u)
+    t1_rec, t2_rec, n_rec = (np.take(v, rec, axis=0) for v in (t1, t2, n))
+    d_world = w_local[:, :1] * t1_rec + w_local[:, 1:2] * t2_rec + w_local[:, 2:3] * n_rec
+    return w_local, d_world, offset_origins(np.take(p_k, rec, axis=0), n_rec, d_world, epsilon)
+
+
+def tally_real_rays(sums: CellSums, cells: np.ndarray, w_local: np.ndarray, hits, origin: np.ndarray,
+                    d_world: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Enter real rays through distinct cells into ``sums`` (:meth:`CellSums.add_real_rays`) and return (the
+    rays that hit (h,), their hit points (h, 3), per record (B,) their sums of 1 / distance and their
+    counts). Compiled when the library is there."""
+    lib = native_kernels.library()
+    if lib is not None:
+        return native_kernels.tally_real_rays(lib, sums, cells, w_local, hits, origin, d_world)
+    return tally_real_rays_numpy(sums, cells, w_local, hits, origin, d_world)
+
+
+def tally_real_rays_numpy(sums: CellSums, cells: np.ndarray, w_local: np.ndarray, hits, origin: np.ndarray,
+                          d_world: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`tally_real_rays` in numpy (the compiled kernel's reference)."""
+    sums.add_real_rays(cells, w_local, hits.t)
+    hit = np.flatnonzero(hits.hit)
+    t = hits.t[hit]
+    q = np.take(origin, hit, axis=0) + np.take(d_world, hit, axis=0) * t[:, None]
+    rec = cells[hit] // sums.H.cells
+    inv_sum = np.bincount(rec, weights=1.0 / np.maximum(t, 1e-300), minlength=sums.B)
+    inv_n = np.bincount(rec, minlength=sums.B).astype(np.float64)
+    return hit, q, inv_sum, inv_n
 
 
 def through_glass(caster, hits: RealHits, sums: CellSums, sky: np.ndarray | None = None
@@ -137,7 +176,7 @@ def side_met(face_normals: np.ndarray, triangle: np.ndarray, direction: np.ndarr
     """(back (h,) bool: the ray reached its triangle's back side, n (h, 3): the face normal turned toward
     the ray) for rays ``direction`` (h, 3) that hit ``triangle`` (h,)."""
     n_face = np.take(face_normals, triangle, axis=0)
-    back = np.einsum("ij,ij->i", n_face, direction) > 0
+    back = dots(n_face, direction) > 0
     return back, np.where(back[:, None], -n_face, n_face)
 
 
@@ -174,11 +213,11 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
     if sources.deviations.gap_gathering and n_record is not None:  # deviation: gap-gathering
         # Not the grid, even where its cell is small: in a gap the cell's records spread the mouth's light.
         within = distance < sources.gap_reach
-        gap = (near | within) & (np.einsum("ij,ij->i", n_hit, n_record) < -GAP_COS)
+        gap = (near | within) & (dots(n_hit, n_record) < -GAP_COS)
         if sources.deviations.corner_gathering:  # deviation: corner-gathering, docs/DEVIATIONS.md
             # At the foot of a wall rising from the record's surface the records' zones, wider than the
             # corner, miss how the surface hides the wall's lower hemisphere.
-            height = distance * np.einsum("ij,ij->i", direction, n_record)
+            height = distance * dots(direction, n_record)
             gap |= (distance < CORNER_REACH * sources.gap_reach) & (height < CORNER_HEIGHT * sources.gap_reach)
     # deviation: open-cells: in a cell whose centroid sees its corners, a hit sees the centroid.
     far = np.flatnonzero(~near & ~gap & ~is_open)
@@ -237,7 +276,7 @@ def gap_irradiance(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng
         y = origin[hit] + d[hit] * hits.t[hit, None]
         rho = albedo_at(scene, tri, bary).astype(np.float64)
         beta_y = beta[hit] * rho  # pi x the radiance leaving y, per cosine pdf
-        inside = (hits.t[hit] < sources.gap_reach) & (np.einsum("ij,ij->i", n_y, n_x[hit]) < -GAP_COS)
+        inside = (hits.t[hit] < sources.gap_reach) & (dots(n_y, n_x[hit]) < -GAP_COS)
         inside &= bounce < GAP_WALK_BOUNCES - 1
         vertices.append((rows[hit], y, n_y, beta_y, ~inside, tri, bary, back_y, hits.t[hit]))
         # Still in the gap: bounce on, or stop by Russian roulette on y's albedo (records read in a
@@ -296,7 +335,7 @@ def _near_cell(q: np.ndarray, centroid: np.ndarray, distance: np.ndarray) -> np.
     times their distance from their grid cell's ``centroid`` (h, 3): the cell would stand for much of
     that point's hemisphere, so the hit is shaded on its own."""
     offset = q - centroid
-    return np.einsum("ij,ij->i", offset, offset) > (HIT_GRID_NEAR * distance) ** 2
+    return dots(offset, offset) > (HIT_GRID_NEAR * distance) ** 2
 
 
 def seeing(sources, view):

@@ -10,10 +10,13 @@ import copy
 import numpy as np
 import pytest
 
-from pdic.core import native_kernels
+from pdic.core import native_kernels, real_rays
 from pdic.core.albedo import albedo_numpy, bilinear_numpy
+from pdic.core.gather_cells import CellSums
+from pdic.core.hemisphere import Hemisphere
 from pdic.core.interpolation import equation3_sums, ward_pairs
 from pdic.core.pipeline import bake
+from pdic.core.rays import Hits
 from pdic.core.settings import preset
 from pdic.core.vectors import dots
 from pdic.core.zone_grid import ZoneGrid
@@ -118,6 +121,53 @@ def test_albedos_equal_numpy():
     textured = scene.materials.texture[scene.geometry.material[triangles]] >= 0
     assert 0.1 < textured.mean() < 0.9 and (got[textured] == 1.0).any()  # textures brighter than 1 clipped
     assert got.dtype == want.dtype == np.float32 and np.array_equal(got, want)
+
+
+def _frames(rng, B):
+    n = _unit(rng.normal(size=(B, 3)))
+    t1 = _unit(np.cross(n, rng.normal(size=(B, 3))))
+    p_k = rng.uniform(-10, 10, (B, 3)) * 10.0 ** rng.uniform(-3, 3, (B, 1))
+    return p_k, t1, np.cross(n, t1), n
+
+
+@pytest.mark.parametrize("rows, columns", [(16, 32), (1, 1), (5, 3)])
+def test_gathering_rays_equal_numpy(rows, columns):
+    rng = np.random.default_rng(18)
+    H, B = Hemisphere(rows, columns), 300
+    cells = rng.choice(B * H.cells, min(B * H.cells, 40000), replace=False)
+    u = rng.random((len(cells), 2))
+    u[::50] = [1.0 - 2 ** -53, 0.0]  # the horizon: sin^2 theta a rounding below 1, rays nearly tangent
+    u[1::50] = 0.0
+    frames = _frames(rng, B)
+    want = real_rays.gathering_rays_numpy(H, cells, u, frames, 3e-5)
+    got = native_kernels.gathering_rays(LIB, H, cells, u, frames, 3e-5)
+    for name, x, y in zip(("w_local", "d_world", "origin"), want, got):
+        assert np.array_equal(x, y), name
+    if rows > 1:  # the horizon was drawn: rays nearly tangent to their record's surface
+        assert (want[0][:, 2] < 1e-7).any() and (want[0][:, 2] > 0.9).any()
+
+
+def test_gathering_tallies_equal_numpy():
+    rng = np.random.default_rng(19)
+    H, B = Hemisphere(8, 16), 200
+    cells = rng.choice(B * H.cells, 20000, replace=False)
+    w, d, o = real_rays.gathering_rays_numpy(H, cells, rng.random((len(cells), 2)), _frames(rng, B), 1e-4)
+    t = np.where(rng.random(len(cells)) < 0.2, np.inf, 10.0 ** rng.uniform(-310, 3, len(cells)))
+    t[::97] = 0.0  # a hit on the origin: 1 / t capped, not inf
+    hits = Hits(t, np.where(np.isinf(t), -1, rng.integers(0, 1000, len(t))), rng.random((len(t), 2)))
+    sums = [CellSums(B, H), CellSums(B, H)]
+    # cells virtual rays reached before
+    earlier = (rng.choice(B * H.cells, 5000, replace=False), rng.random((5000, 3)), _unit(rng.random((5000, 3))),
+               rng.uniform(0, 5, 5000))
+    for s in sums:
+        s.add_rays(*earlier)
+    want = real_rays.tally_real_rays_numpy(sums[0], cells, w, hits, o, d)
+    got = native_kernels.tally_real_rays(LIB, sums[1], cells, w, hits, o, d)
+    for name, x, y in zip(("hit", "q", "inv_sum", "inv_n"), want, got):
+        assert np.array_equal(x, y), name
+    assert np.isfinite(want[2]).all() and want[3].sum() == (t < np.inf).sum()
+    for name in ("rot_sum", "count", "r_min", "L_sum"):
+        assert np.array_equal(getattr(sums[0], name), getattr(sums[1], name)), name
 
 
 def test_dots_sum_left_to_right():

@@ -1,5 +1,5 @@
-/* Compiled kernels of Equation 3 (paper Equations 1 to 3) and of the albedo at hits,
- * for core/native_kernels.py.
+/* Compiled kernels of Equation 3 (paper Equations 1 to 3), of the albedo at hits and of pass 3's
+ * gathering rays, for core/native_kernels.py.
  *
  * Each function is the loop form of a numpy function in core/ (named in its comment) and does
  * the same floating-point operations in the same order, so its results are identical to the bit:
@@ -16,8 +16,11 @@
 #define PDIC_EXPORT __attribute__((visibility("default")))
 #endif
 
+/* 2 pi as numpy's 2 * np.pi (M_PI is not in every C library's math.h). */
+#define PDIC_TWO_PI 6.283185307179586
+
 /* Bumped whenever a signature changes: core/native_kernels.py refuses a library of another version. */
-PDIC_EXPORT int64_t pdic_native_version(void) { return 3; }
+PDIC_EXPORT int64_t pdic_native_version(void) { return 4; }
 
 /* core.zone_grid.ZoneGrid.pairs: every (point, record) with |q - p_k|^2 <= zone_k^2, points in order,
  * each point's cell entries in order. Dense cell table: first (n_cells + 1), else the sorted occupied
@@ -203,4 +206,73 @@ PDIC_EXPORT void pdic_albedo(const int32_t *material, const float *base_color, c
         }
         for (int c = 0; c < 3; ++c) o[c] = o[c] < 0.0f ? 0.0f : (o[c] > 1.0f ? 1.0f : o[c]);
     }
+}
+
+/* The phi angle core.hemisphere.Hemisphere.sample_cells draws in each flat cell (record * C + cell) of a
+ * hemisphere of `columns` phi columns, at uniform u (n, 2): 2 pi (k + u1) / columns. numpy takes its sine
+ * and cosine (a C library's may differ in the last bit), pdic_gathering_rays the rest. */
+PDIC_EXPORT void pdic_cell_phi(const int64_t *cells, int64_t n, int64_t C, int64_t columns, const double *u,
+                               double *phi_out) {
+    for (int64_t i = 0; i < n; ++i) {
+        int64_t k = (cells[i] % C) % columns;
+        phi_out[i] = (PDIC_TWO_PI * ((double)k + u[2 * i + 1])) / (double)columns;
+    }
+}
+
+/* core.real_rays.gathering_rays: one real ray per flat cell, drawn in its cell (Hemisphere.sample_cells,
+ * with the cell's phi's cosine and sine), turned into world space by its record's frame (t1, t2, n) and
+ * leaving from the record's point pushed epsilon off its surface to the ray's side
+ * (RayCaster.offset_origins). w_out, d_out, o_out : (n, 3) local direction, world direction, origin. */
+PDIC_EXPORT void pdic_gathering_rays(const int64_t *cells, int64_t n, int64_t C, int64_t columns, int64_t rows,
+                                     const double *u, const double *cos_phi, const double *sin_phi,
+                                     const double *p_k, const double *t1, const double *t2, const double *nrm,
+                                     double epsilon, double *w_out, double *d_out, double *o_out) {
+    for (int64_t i = 0; i < n; ++i) {
+        int64_t rec = cells[i] / C, j = (cells[i] % C) / columns;
+        double sin2 = ((double)j + u[2 * i]) / (double)rows;
+        double s = sqrt(sin2), c2 = 1.0 - sin2;
+        double w[3] = {s * cos_phi[i], s * sin_phi[i], sqrt(c2 < 0.0 ? 0.0 : c2)};
+        const double *a = t1 + 3 * rec, *b = t2 + 3 * rec, *z = nrm + 3 * rec, *p = p_k + 3 * rec;
+        double d[3];
+        for (int c = 0; c < 3; ++c) d[c] = (w[0] * a[c] + w[1] * b[c]) + w[2] * z[c];
+        double along = z[0] * d[0] + z[1] * d[1] + z[2] * d[2];
+        double side = along < 0.0 ? -1.0 : 1.0;  /* np.sign, 0 -> 1 */
+        if (along != along) side = along;        /* np.sign(NaN) is NaN */
+        double push = epsilon * side;
+        for (int c = 0; c < 3; ++c) {
+            w_out[3 * i + c] = w[c];
+            d_out[3 * i + c] = d[c];
+            o_out[3 * i + c] = p[c] + push * z[c];
+        }
+    }
+}
+
+/* core.real_rays.tally_real_rays: each ray's cell (distinct cells) takes its rotational-gradient axis, a count
+ * of 1 and its distance t (inf on a miss) as CellSums.add_real_rays does; the rays that hit (tri >= 0),
+ * in order, go to hit_out with their points o + d t in q_out, and their records (cell / C) sum 1 / t and
+ * count them in inv_sum and inv_n (B,), zeroed by the caller, in ray order as np.bincount adds.
+ * Returns how many hit. */
+PDIC_EXPORT int64_t pdic_tally_real_rays(const int64_t *cells, int64_t n, int64_t C, const double *w_local,
+                                         const double *t, const int64_t *tri, const double *o, const double *d,
+                                         double *rot_sum, double *count, double *r_min, double *inv_sum,
+                                         double *inv_n, int64_t *hit_out, double *q_out) {
+    int64_t h = 0;
+    for (int64_t i = 0; i < n; ++i) {
+        int64_t cell = cells[i];
+        const double *w = w_local + 3 * i;
+        double cos_ = w[2] < 1e-6 ? 1e-6 : w[2];  /* np.maximum: NaN stays NaN */
+        if (w[2] != w[2]) cos_ = w[2];
+        rot_sum[3 * cell] += -w[1] / cos_;
+        rot_sum[3 * cell + 1] += w[0] / cos_;
+        count[cell] += 1.0;
+        double r = r_min[cell], ti = t[i];
+        r_min[cell] = (r != r || r <= ti) ? r : ti;  /* np.minimum: NaN wins */
+        if (tri[i] < 0) continue;
+        for (int c = 0; c < 3; ++c) q_out[3 * h + c] = o[3 * i + c] + d[3 * i + c] * ti;
+        double far = (ti != ti || ti >= 1e-300) ? ti : 1e-300;
+        inv_sum[cell / C] += 1.0 / far;
+        inv_n[cell / C] += 1.0;
+        hit_out[h++] = i;
+    }
+    return h;
 }
