@@ -23,7 +23,7 @@ import numpy as np
 
 from . import sampling
 from .sampling import concentric_disk, cosine_hemisphere, orthonormal_basis, uniform_cone, uniform_sphere, uniform_triangle
-from .vectors import norms, unit
+from .vectors import dots, norms, unit
 
 
 class SceneError(ValueError):
@@ -357,6 +357,45 @@ Light = PointLight | SpotLight | SunLight | AreaLight
 
 
 # --------------------------------------------------------------------------- shadow-ray sampling
+def point_light_rays(p: np.ndarray, n_s: np.ndarray, n_g: np.ndarray, c: np.ndarray, epsilon: float) -> tuple:
+    """The shadow rays toward a point light of radius 0 at c (3,) from points p with unit normals n_s, n_g
+    (m, 3), as :func:`_point_like` samples it and :meth:`RayCaster.transmittance_between` casts: (rows (k,)
+    the points lit at a positive weight, weight (k,) cos_s / (4 pi d^2), start (k, 3) each ray's origin
+    pushed ``epsilon`` off its surface, directions (k, 3) unit (0 for a zero-length segment), t_max (k,),
+    open (k,) bool: a positive length). Compiled (:mod:`core.native_kernels`) when the library is there."""
+    from . import native_kernels  # here: native_kernels' check imports this module
+
+    lib = native_kernels.library()
+    if lib is not None:
+        return native_kernels.point_light_rays(lib, p, n_s, n_g, c, epsilon)
+    return point_light_rays_numpy(p, n_s, n_g, c, epsilon)
+
+
+def point_light_rays_numpy(p: np.ndarray, n_s: np.ndarray, n_g: np.ndarray, c: np.ndarray, epsilon: float) -> tuple:
+    """:func:`point_light_rays` in numpy (the compiled kernel's reference)."""
+    from .rays import offset_origins
+
+    delta = c - p
+    D = norms(delta)
+    can = np.flatnonzero((D > 0) & (dots(n_g, delta) > 0.0) & (dots(n_s, delta) > 0.0))
+    d = D[can]
+    w = delta[can] / d[:, None]
+    cos_s = dots(n_s[can], w)
+    weight = cos_s / (4.0 * np.pi * d * d)
+    ok = (cos_s > 0) & (dots(n_g[can], w) > 0) & (weight > 0)
+    rows, w, weight = can[ok], w[ok], weight[ok]
+    start = offset_origins(p[rows], n_g[rows], w, epsilon)  # w: the ray's direction toward c
+    segment = c - start
+    dist = norms(segment)
+    directions = np.divide(segment, dist[:, None], out=np.zeros_like(segment), where=dist[:, None] > 0)
+    return rows, weight, start, directions, np.maximum(dist - epsilon, 0.0), dist > 0
+
+
+def is_hard_point(emitter) -> bool:
+    """A point light of radius 0: one exact shadow ray per point (:func:`point_light_rays`)."""
+    return type(emitter) is PointLight and max(float(emitter.radius), 0.0) == 0.0
+
+
 def _point_like(kind, light, attenuation, caster, p, n_s, n_g, samples, rng):
     """Point or spot light; a radius makes it a disk facing the receiver or a sphere."""
     P = _rgb(light.power, light.name)
@@ -369,7 +408,7 @@ def _point_like(kind, light, attenuation, caster, p, n_s, n_g, samples, rng):
     D = norms(delta)
     # Which points can receive anything: not at the light, light not wholly below the surface,
     # inside the spot cone widened by the light's angular radius.
-    can = (D > 0) & (_dot(n_g, delta) > -r) & (_dot(n_s, delta) > -r)
+    can = (D > 0) & (dots(n_g, delta) > -r) & (dots(n_s, delta) > -r)  # dots: as the compiled point light
     if attenuation is not None:
         v = np.divide(-delta, D[:, None], out=np.zeros_like(delta), where=D[:, None] > 0)
         spread = np.arcsin(np.clip(np.divide(r, D, out=np.ones_like(D), where=D > 0), 0.0, 1.0))
@@ -382,8 +421,8 @@ def _point_like(kind, light, attenuation, caster, p, n_s, n_g, samples, rng):
         # E = P cos_s / (4 pi d^2) x spot mask, one shadow ray.
         d = D[idx]
         w = delta[idx] / d[:, None]
-        cos_s = _dot(nsk, w)
-        ok = (cos_s > 0) & (_dot(ngk, w) > 0)
+        cos_s = dots(nsk, w)
+        ok = (cos_s > 0) & (dots(ngk, w) > 0)
         f = attenuation(-w) if attenuation is not None else 1.0
         weight = f * cos_s / (4.0 * np.pi * d * d)
         ok &= weight > 0

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-VERSION = 4
+VERSION = 5
 """The C library's ``pdic_native_version()`` this module calls; a library of another version is not used."""
 NATIVE_DIR = Path(__file__).resolve().parent / "native"
 SUFFIX = {"linux": ".so", "windows": ".dll", "macos": ".dylib"}
@@ -80,6 +80,8 @@ def _declare(lib) -> None:
     lib.pdic_gathering_rays.argtypes = [_PTR, _I64, _I64, _I64, _I64] + [_PTR] * 7 + [_F64, _PTR, _PTR, _PTR]
     lib.pdic_tally_real_rays.restype = _I64
     lib.pdic_tally_real_rays.argtypes = [_PTR, _I64, _I64] + [_PTR] * 12
+    lib.pdic_point_light_rays.restype = _I64
+    lib.pdic_point_light_rays.argtypes = [_PTR, _PTR, _PTR, _I64, _PTR, _F64] + [_PTR] * 6
 
 
 def _load():
@@ -239,6 +241,17 @@ def tally_real_rays(lib, sums, cells: np.ndarray, w_local: np.ndarray, hits, ori
     return hit[:h], q[:h], inv_sum, inv_n
 
 
+def point_light_rays(lib, p, n_s, n_g, c, epsilon: float) -> tuple:
+    """:func:`core.lights.point_light_rays` in C: the same (rows, weight, start, directions, t_max, open)."""
+    p, n_s, n_g, c = _f64(p), _f64(n_s), _f64(n_g), _f64(c)
+    m = len(p)
+    rows, weight, t_max, lit = np.empty(m, np.int64), np.empty(m), np.empty(m), np.empty(m, np.uint8)
+    start, directions = np.empty((m, 3)), np.empty((m, 3))
+    k = lib.pdic_point_light_rays(_ptr(p), _ptr(n_s), _ptr(n_g), m, _ptr(c), float(epsilon), _ptr(rows), _ptr(weight),
+                                  _ptr(start), _ptr(directions), _ptr(t_max), _ptr(lit))
+    return rows[:k], weight[:k], start[:k], directions[:k], t_max[:k], lit[:k].view(bool)
+
+
 def _self_check(lib) -> str | None:
     """Compare the library with the numpy functions on a small random problem, to the bit.
 
@@ -317,6 +330,19 @@ def _self_check_gathering(lib, rng) -> str | None:
     same = all(np.array_equal(x, y) for x, y in zip(want, got))
     if not (same and all(np.array_equal(getattr(sums[0], f), getattr(sums[1], f)) for f in ("rot_sum", "count", "r_min"))):
         return "gathering tallies differ"
+    return _self_check_lights(lib, rng)
+
+
+def _self_check_lights(lib, rng) -> str | None:
+    from .lights import point_light_rays_numpy
+
+    p = rng.normal(size=(300, 3))
+    n_s, n_g = (v / np.linalg.norm(v, axis=1, keepdims=True) for v in rng.normal(size=(2, 300, 3)))
+    c = np.array([0.1, -0.2, 0.3])
+    p[::50] = c  # a point at the light
+    want = point_light_rays_numpy(p, n_s, n_g, c, 1e-3)
+    if not all(np.array_equal(x, y) for x, y in zip(want, point_light_rays(lib, p, n_s, n_g, c, 1e-3))):
+        return "point light rays differ"
     return None
 
 

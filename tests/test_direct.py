@@ -367,3 +367,41 @@ def test_albedo_interpolates_texture_uv_and_returns_constant_colours():
     got = albedo(s, np.array([0, 1, 1]), np.array([[0.3, 0.3], [0.1, 0.8], [0.8, 0.1]]))
     assert got.dtype == np.float32
     assert np.allclose(got, [[0.2, 0.4, 0.6], [0, 0, 1], [1, 1, 1]])
+
+
+def test_point_lights_of_radius_0_cast_the_rays_their_samples_would(monkeypatch):
+    """A hard point light takes a short path (its rays straight from point_light_rays, compiled or numpy):
+    the same E, rays and skipped points to the bit as the general path through its (k, 1) samples."""
+    from pdic.core import direct, native_kernels
+    from pdic.core.lights import point_light_rays_numpy
+
+    rng = np.random.default_rng(4)
+    blocker = quad((0.1, 0.0, 0.6), 0.3, 0.2)
+    lights = [sc.PointLight("lamp", np.array([0.0, 0.0, 1.0]), np.array([100.0, 50.0, 25.0])),
+              sc.PointLight("low", np.array([0.3, -0.2, 0.05]), np.full(3, 40.0)),
+              sc.PointLight("dark", np.array([0.0, 0.0, 2.0]), np.zeros(3))]
+    s = make_scene(FLOOR + blocker, lights)
+    p, n = floor_points(n=41, half=0.95)
+    n_s = n + rng.normal(scale=0.3, size=n.shape)  # bent shading normals: some see a light the face does not
+    p[7] = lights[1].position  # a point at a light receives nothing from it
+    caster = RayCaster(s.geometry.positions, s.extent)
+    short, library = direct.is_hard_point, native_kernels.library
+    monkeypatch.setattr(direct, "is_hard_point", lambda emitter: False)
+    runs = {"general": direct_irradiance(s, caster, p, n_s, n, 1, np.random.default_rng(0))}
+    monkeypatch.setattr(direct, "is_hard_point", short)
+    monkeypatch.setattr(native_kernels, "library", lambda: None)
+    runs["numpy"] = direct_irradiance(s, caster, p, n_s, n, 1, np.random.default_rng(0))
+    monkeypatch.setattr(native_kernels, "library", library)
+    runs["compiled"] = direct_irradiance(s, caster, p, n_s, n, 1, np.random.default_rng(0))
+    for path in ("numpy", "compiled"):
+        assert np.array_equal(runs[path].E, runs["general"].E), path
+        assert runs[path].shadow_rays == runs["general"].shadow_rays and runs[path].skipped == runs["general"].skipped
+    assert 0 < (runs["general"].E[:, 0] == 0).sum() < len(p) and runs["general"].skipped["dark"] == len(p)
+    assert native_kernels.library() is not None
+    # the kernel itself, against numpy, over many decades and at the light
+    p = rng.normal(size=(20000, 3)) * 10.0 ** rng.uniform(-4, 3, (20000, 1))
+    p[::101] = 0.0
+    n_s, n_g = (v / np.linalg.norm(v, axis=1, keepdims=True) for v in rng.normal(size=(2, 20000, 3)))
+    want = point_light_rays_numpy(p, n_s, n_g, np.zeros(3), 1e-4)
+    got = native_kernels.point_light_rays(native_kernels.library(), p, n_s, n_g, np.zeros(3), 1e-4)
+    assert all(np.array_equal(x, y) for x, y in zip(want, got)) and len(want[0]) > 1000

@@ -1,5 +1,5 @@
-/* Compiled kernels of Equation 3 (paper Equations 1 to 3), of the albedo at hits and of pass 3's
- * gathering rays, for core/native_kernels.py.
+/* Compiled kernels of Equation 3 (paper Equations 1 to 3), of the albedo at hits, of pass 3's gathering
+ * rays and of point lights' shadow rays, for core/native_kernels.py.
  *
  * Each function is the loop form of a numpy function in core/ (named in its comment) and does
  * the same floating-point operations in the same order, so its results are identical to the bit:
@@ -18,9 +18,11 @@
 
 /* 2 pi as numpy's 2 * np.pi (M_PI is not in every C library's math.h). */
 #define PDIC_TWO_PI 6.283185307179586
+/* 4 pi as numpy's 4.0 * np.pi. */
+#define PDIC_FOUR_PI 12.566370614359172
 
 /* Bumped whenever a signature changes: core/native_kernels.py refuses a library of another version. */
-PDIC_EXPORT int64_t pdic_native_version(void) { return 4; }
+PDIC_EXPORT int64_t pdic_native_version(void) { return 5; }
 
 /* core.zone_grid.ZoneGrid.pairs: every (point, record) with |q - p_k|^2 <= zone_k^2, points in order,
  * each point's cell entries in order. Dense cell table: first (n_cells + 1), else the sorted occupied
@@ -275,4 +277,45 @@ PDIC_EXPORT int64_t pdic_tally_real_rays(const int64_t *cells, int64_t n, int64_
         hit_out[h++] = i;
     }
     return h;
+}
+
+/* core.lights.point_light_rays: the shadow rays toward a point light of radius 0 at c from points p with
+ * unit shading and geometric normals n_s, n_g (m, 3), as core.lights._point_like and
+ * core.rays.RayCaster.transmittance_between make them. Per point that receives light (in front of both
+ * normals, lit at a positive weight cos_s / (4 pi d^2)), in order: its index (rows_out), weight, the
+ * segment's start pushed epsilon off the surface, unit direction (0 for a zero-length segment), length
+ * less epsilon (t_max, at least 0) and whether the length is positive (open_out). Returns how many. */
+PDIC_EXPORT int64_t pdic_point_light_rays(const double *p, const double *n_s, const double *n_g, int64_t m,
+                                          const double *c, double epsilon, int64_t *rows_out,
+                                          double *weight_out, double *start_out, double *dir_out,
+                                          double *t_max_out, uint8_t *open_out) {
+    int64_t k = 0;
+    for (int64_t i = 0; i < m; ++i) {
+        const double *x = p + 3 * i, *s = n_s + 3 * i, *g = n_g + 3 * i;
+        double delta[3] = {c[0] - x[0], c[1] - x[1], c[2] - x[2]};
+        double D = sqrt(delta[0] * delta[0] + delta[1] * delta[1] + delta[2] * delta[2]);
+        if (!(D > 0.0 && (g[0] * delta[0] + g[1] * delta[1] + g[2] * delta[2]) > 0.0
+              && (s[0] * delta[0] + s[1] * delta[1] + s[2] * delta[2]) > 0.0)) continue;
+        double w[3] = {delta[0] / D, delta[1] / D, delta[2] / D};
+        double cos_s = s[0] * w[0] + s[1] * w[1] + s[2] * w[2];
+        double cos_g = g[0] * w[0] + g[1] * w[1] + g[2] * w[2];
+        double weight = cos_s / ((PDIC_FOUR_PI * D) * D);
+        if (!(cos_s > 0.0 && cos_g > 0.0 && weight > 0.0)) continue;
+        /* The ray toward the light is w (the same unit vector) and leaves in front of n_g (cos_g > 0). */
+        double seg[3];
+        for (int a = 0; a < 3; ++a) {
+            double start = x[a] + epsilon * g[a];
+            start_out[3 * k + a] = start;
+            seg[a] = c[a] - start;
+        }
+        double dist = sqrt(seg[0] * seg[0] + seg[1] * seg[1] + seg[2] * seg[2]);
+        for (int a = 0; a < 3; ++a) dir_out[3 * k + a] = dist > 0.0 ? seg[a] / dist : 0.0;
+        double t_max = dist - epsilon;
+        t_max_out[k] = (t_max != t_max || t_max >= 0.0) ? t_max : 0.0;  /* np.maximum(., 0): NaN stays */
+        open_out[k] = dist > 0.0;
+        rows_out[k] = i;
+        weight_out[k] = weight;
+        ++k;
+    }
+    return k;
 }
