@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-VERSION = 5
+VERSION = 6
 """The C library's ``pdic_native_version()`` this module calls; a library of another version is not used."""
 NATIVE_DIR = Path(__file__).resolve().parent / "native"
 SUFFIX = {"linux": ".so", "windows": ".dll", "macos": ".dylib"}
@@ -82,6 +82,9 @@ def _declare(lib) -> None:
     lib.pdic_tally_real_rays.argtypes = [_PTR, _I64, _I64] + [_PTR] * 12
     lib.pdic_point_light_rays.restype = _I64
     lib.pdic_point_light_rays.argtypes = [_PTR, _PTR, _PTR, _I64, _PTR, _F64] + [_PTR] * 6
+    lib.pdic_hit_cells.restype = None
+    lib.pdic_hit_cells.argtypes = ([_PTR] * 5 + [_I64] + [_PTR] * 3 + [_I64] + [_PTR] * 4 + [_F64, _PTR] + [_F64] * 4
+                                   + [_PTR] * 7)
 
 
 def _load():
@@ -252,6 +255,28 @@ def point_light_rays(lib, p, n_s, n_g, c, epsilon: float) -> tuple:
     return rows[:k], weight[:k], start[:k], directions[:k], t_max[:k], lit[:k].view(bool)
 
 
+def hit_cells(lib, caster, grid, triangle, barycentric, q, direction, distance, gap_tests):
+    """:func:`core.real_rays.hit_cells` in C over hit grid ``grid`` (``gap_tests``:
+    :func:`core.real_rays.gap_tests`): the same (n_hit, E, centroid, rho, is_open, near, gap)."""
+    from .constants import HIT_GRID_NEAR  # here: tools/build_native.py loads this file on its own
+
+    h, V = len(triangle), grid.E.shape[1]
+    tables = [_f64(caster.face_normals), _i64(grid.side), _i64(grid.offset), np.ascontiguousarray(grid.E, np.float32),
+              _f64(grid.centroid), None if grid.albedo is None else np.ascontiguousarray(grid.albedo, np.float32),
+              None if grid.open is None else np.ascontiguousarray(grid.open).view(np.uint8)]
+    hits = [_i64(triangle), _f64(barycentric), _f64(direction), _f64(q), _f64(distance)]
+    n_record, gap_reach, gap_cos, corner_reach, corner_height = gap_tests or (None, 0.0, 0.0, 0.0, 0.0)
+    n_record = None if n_record is None else _f64(n_record)
+    E, centroid, n_hit = np.empty((h, 3)), np.empty((h, 3)), np.empty((h, 3))
+    rho = None if grid.albedo is None else np.empty((h, 3))
+    flags = np.empty((3, h), np.uint8)  # open, near, gap
+    lib.pdic_hit_cells(*map(_ptr, hits), h, *map(_ptr, tables[:3]), V, *map(_ptr, tables[3:]), HIT_GRID_NEAR,
+                       _ptr(n_record), float(gap_reach), float(gap_cos), float(corner_reach), float(corner_height),
+                       _ptr(E), _ptr(centroid), _ptr(rho), _ptr(n_hit), *(_ptr(row) for row in flags))
+    is_open, near, gap = flags.view(bool)
+    return n_hit, E, centroid, rho, is_open, near, gap
+
+
 def _self_check(lib) -> str | None:
     """Compare the library with the numpy functions on a small random problem, to the bit.
 
@@ -343,7 +368,41 @@ def _self_check_lights(lib, rng) -> str | None:
     want = point_light_rays_numpy(p, n_s, n_g, c, 1e-3)
     if not all(np.array_equal(x, y) for x, y in zip(want, point_light_rays(lib, p, n_s, n_g, c, 1e-3))):
         return "point light rays differ"
+    caster, sources, hits = _grid_hits(rng, 30, 300)
+    from . import real_rays
+
+    for n_record in (hits[-1], None):
+        want = real_rays.hit_cells_numpy(caster, sources, *hits[:-1], n_record)
+        got = hit_cells(lib, caster, sources.hit_grid, *hits[:-1], real_rays.gap_tests(sources, n_record))
+        if not all((x is None and y is None) or np.array_equal(x, y) for x, y in zip(want, got)):
+            return "hit cells differ"
     return None
+
+
+def _grid_hits(rng, T: int, h: int, albedo: bool = True, open_cells: bool = True):
+    """(caster, sources, (triangle, barycentric, q, direction, distance, n_record)): a random hit grid over T
+    triangles and h gathering hits on it, gap tests on (for the self-check and the tests)."""
+    from types import SimpleNamespace
+
+    from .hit_radiance import HitGrid
+    from .settings import Deviations
+
+    side = rng.integers(1, 6, T)
+    offset = np.concatenate([[0], np.cumsum(side * side)[:-1]])
+    V = int((side * side).sum())
+    E = rng.uniform(0.0, 5.0, (2, V, 3)).astype(np.float32)
+    grid = HitGrid(side, offset, E, E, rng.normal(size=(V, 3)),
+                   rng.random((V, 3), dtype=np.float32) if albedo else None, None,
+                   rng.random((2, V)) < 0.5 if open_cells else None)
+    normals = rng.normal(size=(T, 3))
+    caster = SimpleNamespace(face_normals=normals / np.linalg.norm(normals, axis=1, keepdims=True))
+    sources = SimpleNamespace(hit_grid=grid, gap_reach=0.3, deviations=Deviations())
+    unit = rng.normal(size=(2, h, 3))
+    unit /= np.linalg.norm(unit, axis=2, keepdims=True)
+    bary = rng.uniform(-0.1, 1.1, (h, 2))
+    bary[::7] = [0.5, 0.5 + 2 ** -40]  # past u + v = 1 by a rounding
+    return caster, sources, (rng.integers(0, T, h), bary, rng.normal(size=(h, 3)), unit[0],
+                             rng.uniform(0.0, 1.0, h), unit[1])
 
 
 def _self_check_texture(lib, rng) -> str | None:

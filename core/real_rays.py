@@ -199,26 +199,12 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
     CORNER_REACH ``sources.gap_reach`` of the record and CORNER_HEIGHT of it above the record's tangent
     plane, at the foot of a surface rising from the record's (deviation: corner-gathering).
     """
-    back, n_hit = side_met(caster.face_normals, triangle, direction)
     if sources.hit_grid is None:
+        _, n_hit = side_met(caster.face_normals, triangle, direction)
         E, rays = _irradiance_at_hits(scene, caster, sources, q, n_hit, rng)
         return albedo_at(scene, triangle, barycentric).astype(np.float64) * E / np.pi, rays, 0
-    # deviation: hit-grid, docs/DEVIATIONS.md: the hit's grid cell (its E and mean albedo), if the
-    # hit sees its centroid and the cell is small as the record sees it. A record 2 cm in front of a
-    # wall (tracery, a pipe, a frame) gathers mostly from the wall patch right behind it, which a
-    # cell's centroid in the open would light.
-    E, centroid, rho, is_open = sources.hit_grid.lookup(triangle, barycentric, back)
-    near = _near_cell(q, centroid, distance)
-    gap = np.zeros(len(q), bool)
-    if sources.deviations.gap_gathering and n_record is not None:  # deviation: gap-gathering
-        # Not the grid, even where its cell is small: in a gap the cell's records spread the mouth's light.
-        within = distance < sources.gap_reach
-        gap = (near | within) & (dots(n_hit, n_record) < -GAP_COS)
-        if sources.deviations.corner_gathering:  # deviation: corner-gathering, docs/DEVIATIONS.md
-            # At the foot of a wall rising from the record's surface the records' zones, wider than the
-            # corner, miss how the surface hides the wall's lower hemisphere.
-            height = distance * dots(direction, n_record)
-            gap |= (distance < CORNER_REACH * sources.gap_reach) & (height < CORNER_HEIGHT * sources.gap_reach)
+    n_hit, E, centroid, rho, is_open, near, gap = hit_cells(caster, sources, triangle, barycentric, q, direction,
+                                                            distance, n_record)
     # deviation: open-cells: in a cell whose centroid sees its corners, a hit sees the centroid.
     far = np.flatnonzero(~near & ~gap & ~is_open)
     alone = near & ~gap
@@ -237,6 +223,53 @@ def radiance_at_hits(scene, caster, sources, triangle: np.ndarray, barycentric: 
         E[in_gap], gap_rays = gap_irradiance(scene, caster, sources, q[in_gap], n_hit[in_gap], rng)
         rays += gap_rays
     return rho * E / np.pi, rays, len(in_gap)
+
+
+def hit_cells(caster, sources, triangle: np.ndarray, barycentric: np.ndarray, q: np.ndarray, direction: np.ndarray,
+              distance: np.ndarray, n_record: np.ndarray | None) -> tuple:
+    """What :func:`radiance_at_hits` knows of gathering hits before it shades any: (n_hit (h, 3) the face
+    normal turned toward the ray; the hit-grid cell's E (h, 3), centroid (h, 3), albedo (h, 3) or None and
+    openness (h,) bool (:meth:`~core.hit_radiance.HitGrid.lookup`); near (h,) bool, the cell large beside
+    the hit's distance from its record (:func:`_near_cell`); gap (h,) bool, the hit gathers by a walk of its
+    own). Compiled (:mod:`core.native_kernels`) when the library is there."""
+    lib = native_kernels.library()
+    if lib is not None:
+        return native_kernels.hit_cells(lib, caster, sources.hit_grid, triangle, barycentric, q, direction, distance,
+                                        gap_tests(sources, n_record))
+    return hit_cells_numpy(caster, sources, triangle, barycentric, q, direction, distance, n_record)
+
+
+def gap_tests(sources, n_record: np.ndarray | None) -> tuple | None:
+    """(n_record, gap_reach, GAP_COS, the corner's reach and height, or 0 and 0 without corner-gathering): the
+    gap tests of :func:`hit_cells`; None without gap-gathering or record normals."""
+    if not (sources.deviations.gap_gathering and n_record is not None):
+        return None
+    corner = sources.deviations.corner_gathering
+    return (n_record, sources.gap_reach, GAP_COS, CORNER_REACH * sources.gap_reach if corner else 0.0,
+            CORNER_HEIGHT * sources.gap_reach if corner else 0.0)
+
+
+def hit_cells_numpy(caster, sources, triangle: np.ndarray, barycentric: np.ndarray, q: np.ndarray,
+                    direction: np.ndarray, distance: np.ndarray, n_record: np.ndarray | None) -> tuple:
+    """:func:`hit_cells` in numpy (the compiled kernel's reference)."""
+    back, n_hit = side_met(caster.face_normals, triangle, direction)
+    # deviation: hit-grid, docs/DEVIATIONS.md: the hit's grid cell (its E and mean albedo), if the
+    # hit sees its centroid and the cell is small as the record sees it. A record 2 cm in front of a
+    # wall (tracery, a pipe, a frame) gathers mostly from the wall patch right behind it, which a
+    # cell's centroid in the open would light.
+    E, centroid, rho, is_open = sources.hit_grid.lookup(triangle, barycentric, back)
+    near = _near_cell(q, centroid, distance)
+    gap = np.zeros(len(q), bool)
+    if sources.deviations.gap_gathering and n_record is not None:  # deviation: gap-gathering
+        # Not the grid, even where its cell is small: in a gap the cell's records spread the mouth's light.
+        within = distance < sources.gap_reach
+        gap = (near | within) & (dots(n_hit, n_record) < -GAP_COS)
+        if sources.deviations.corner_gathering:  # deviation: corner-gathering, docs/DEVIATIONS.md
+            # At the foot of a wall rising from the record's surface the records' zones, wider than the
+            # corner, miss how the surface hides the wall's lower hemisphere.
+            height = distance * dots(direction, n_record)
+            gap |= (distance < CORNER_REACH * sources.gap_reach) & (height < CORNER_HEIGHT * sources.gap_reach)
+    return n_hit, E, centroid, rho, is_open, near, gap
 
 
 def gap_irradiance(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng: np.random.Generator

@@ -6,6 +6,7 @@ order of operations (magnitudes over many decades, NaN and far-away points), and
 with the library against one with the numpy kernels.
 """
 import copy
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -168,6 +169,30 @@ def test_gathering_tallies_equal_numpy():
     assert np.isfinite(want[2]).all() and want[3].sum() == (t < np.inf).sum()
     for name in ("rot_sum", "count", "r_min", "L_sum"):
         assert np.array_equal(getattr(sums[0], name), getattr(sums[1], name)), name
+
+
+@pytest.mark.parametrize("albedo, open_cells, corner, gap", [(True, True, True, True), (False, False, True, True),
+                                                             (True, True, False, True), (True, False, True, False)])
+def test_hit_cells_equal_numpy(albedo, open_cells, corner, gap):
+    rng = np.random.default_rng(20)
+    caster, sources, hits = native_kernels._grid_hits(rng, 2000, 50000, albedo, open_cells)
+    sources.deviations = replace(sources.deviations, corner_gathering=corner, gap_gathering=gap)
+    hits[4][::5] *= 1e-3  # hits close to their record: in the gap's reach
+    want = real_rays.hit_cells_numpy(caster, sources, *hits)
+    got = native_kernels.hit_cells(LIB, caster, sources.hit_grid, *hits[:-1], real_rays.gap_tests(sources, hits[-1]))
+    for name, x, y in zip(("n_hit", "E", "centroid", "rho", "is_open", "near", "gap"), want, got):
+        assert (x is None and y is None) or (x.dtype == y.dtype and np.array_equal(x, y)), name
+    n_hit, E, centroid, rho, is_open, near, in_gap = want
+    assert (rho is None) == (not albedo) and is_open.any() == open_cells
+    assert 0 < near.mean() < 1 and (0 < in_gap.mean() < 1) == gap
+    # each hit reads a cell of its own triangle, on the side it met
+    grid, triangle = sources.hit_grid, hits[0]
+    back = dots(caster.face_normals[triangle], hits[3]) > 0
+    assert np.array_equal(n_hit, np.where(back[:, None], -1, 1) * caster.face_normals[triangle])
+    cell_of = {tuple(c): k for k, c in enumerate(grid.centroid.tolist())}
+    cell = np.array([cell_of[tuple(c)] for c in centroid.tolist()])
+    assert ((cell >= grid.offset[triangle]) & (cell < grid.offset[triangle] + grid.side[triangle] ** 2)).all()
+    assert np.array_equal(E, grid.E[back.astype(int), cell].astype(np.float64))
 
 
 def test_dots_sum_left_to_right():

@@ -1,5 +1,5 @@
 /* Compiled kernels of Equation 3 (paper Equations 1 to 3), of the albedo at hits, of pass 3's gathering
- * rays and of point lights' shadow rays, for core/native_kernels.py.
+ * rays, their hits and of point lights' shadow rays, for core/native_kernels.py.
  *
  * Each function is the loop form of a numpy function in core/ (named in its comment) and does
  * the same floating-point operations in the same order, so its results are identical to the bit:
@@ -22,7 +22,7 @@
 #define PDIC_FOUR_PI 12.566370614359172
 
 /* Bumped whenever a signature changes: core/native_kernels.py refuses a library of another version. */
-PDIC_EXPORT int64_t pdic_native_version(void) { return 5; }
+PDIC_EXPORT int64_t pdic_native_version(void) { return 6; }
 
 /* core.zone_grid.ZoneGrid.pairs: every (point, record) with |q - p_k|^2 <= zone_k^2, points in order,
  * each point's cell entries in order. Dense cell table: first (n_cells + 1), else the sorted occupied
@@ -318,4 +318,63 @@ PDIC_EXPORT int64_t pdic_point_light_rays(const double *p, const double *n_s, co
         ++k;
     }
     return k;
+}
+
+static inline double clip01(double v) { return v < 0.0 ? 0.0 : (v > 1.0 ? 1.0 : v); }
+
+/* core.real_rays.hit_cells: for gathering hits on triangles (h,) at Embree barycentrics (h, 2), met by
+ * rays `direction` (h, 3) at q (h, 3), `distance` (h,) from their record: the side met (real_rays.side_met:
+ * back, n_hit), the hit grid's cell there (core.hit_radiance.HitGrid.lookup: E (2, V, 3) float32 per side,
+ * centroid (V, 3), albedo (V, 3) float32 or NULL, open (2, V) or NULL), whether the hit is near its cell's
+ * centroid (real_rays._near_cell) and, given the hits' record normals n_record (h, 3), whether it lies in a
+ * gap (gap-gathering; corner-gathering when corner_reach > 0), as real_rays.radiance_at_hits tests.
+ * Finite barycentrics only. Outputs (h, 3) float64: E_out, centroid_out, rho_out (with albedo), n_out;
+ * (h,) uint8: open_out, near_out, gap_out. */
+PDIC_EXPORT void pdic_hit_cells(const int64_t *triangle, const double *barycentric, const double *direction,
+                                const double *q, const double *distance, int64_t h, const double *face_normals,
+                                const int64_t *side, const int64_t *offset, int64_t V, const float *E,
+                                const double *centroid, const float *albedo, const uint8_t *open,
+                                double near_factor, const double *n_record, double gap_reach, double gap_cos,
+                                double corner_reach, double corner_height, double *E_out,
+                                double *centroid_out, double *rho_out, double *n_out, uint8_t *open_out,
+                                uint8_t *near_out, uint8_t *gap_out) {
+    for (int64_t k = 0; k < h; ++k) {
+        int64_t t = triangle[k];
+        const double *f = face_normals + 3 * t, *d = direction + 3 * k;
+        int64_t back = (f[0] * d[0] + f[1] * d[1] + f[2] * d[2]) > 0.0;
+        double nh[3];
+        for (int c = 0; c < 3; ++c) nh[c] = back ? -f[c] : f[c];
+        int64_t L = side[t];
+        double x = clip01(barycentric[2 * k]) * (double)L, y = clip01(barycentric[2 * k + 1]) * (double)L;
+        double fi = floor(x), fj = floor(y), top = (double)(L - 1);
+        fi = fi < 0.0 ? 0.0 : (fi > top ? top : fi);
+        fj = fj < 0.0 ? 0.0 : (fj > top ? top : fj);
+        int64_t i = (int64_t)fi, j = (int64_t)fj;
+        if (i > L - 1 - j) i = L - 1 - j;
+        int64_t upper = ((x - (double)i) + (y - (double)j) > 1.0) && (i < L - 1 - j);
+        int64_t cell = offset[t] + j * (2 * L - j) + 2 * i + upper, at = back * V + cell;
+        const double *cen = centroid + 3 * cell;
+        double o[3];
+        for (int c = 0; c < 3; ++c) {
+            E_out[3 * k + c] = (double)E[3 * at + c];
+            centroid_out[3 * k + c] = cen[c];
+            n_out[3 * k + c] = nh[c];
+            if (albedo) rho_out[3 * k + c] = (double)albedo[3 * cell + c];
+            o[c] = q[3 * k + c] - cen[c];
+        }
+        double reach = near_factor * distance[k];
+        int near = (o[0] * o[0] + o[1] * o[1] + o[2] * o[2]) > reach * reach;
+        int gap = 0;
+        if (n_record) {
+            const double *r = n_record + 3 * k;
+            gap = (near || distance[k] < gap_reach) && ((nh[0] * r[0] + nh[1] * r[1] + nh[2] * r[2]) < -gap_cos);
+            if (corner_reach > 0.0) {
+                double height = distance[k] * (d[0] * r[0] + d[1] * r[1] + d[2] * r[2]);
+                gap = gap || ((distance[k] < corner_reach) && (height < corner_height));
+            }
+        }
+        open_out[k] = open ? open[at] : 0;
+        near_out[k] = (uint8_t)near;
+        gap_out[k] = (uint8_t)gap;
+    }
 }
