@@ -38,7 +38,7 @@ import numpy as np
 from .constants import STREAM_DIRECT_EDGE
 from .executor import TEXEL_CHUNK, slices
 from .lights import EMISSIVE_KEY, WORLD_KEY, SceneError, ShadowSamples, spot_attenuation  # noqa: F401 (re-exported)
-from .lights import _rgb, is_hard_point, point_light_rays
+from .lights import _rgb
 from .rays import RayCaster
 from .scene import Scene
 from .vectors import unit
@@ -116,8 +116,8 @@ def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, norma
     if n == 0:
         return out
     for emitter in scene.emitters():
-        if edge_rng is None and is_hard_point(emitter):
-            _trace_point(out, caster, p, n_s, n_g, emitter)
+        if edge_rng is None and getattr(emitter, "hard", False):  # a point light of radius 0
+            _trace_hard(out, caster, p, n_s, n_g, emitter)
             continue
         if not hasattr(emitter, "sample_toward"):
             raise SceneError(f"light {getattr(emitter, 'name', emitter)!r}: unsupported type {type(emitter).__name__}")
@@ -177,15 +177,14 @@ def _trace(out: DirectResult, caster: RayCaster, p, n_g, shadow: ShadowSamples) 
     return vis
 
 
-def _trace_point(out: DirectResult, caster: RayCaster, p, n_s, n_g, light) -> None:
-    """:func:`_trace` of a point light of radius 0 (:func:`~core.lights.is_hard_point`), the same sums in the
-    same order without the (k, m) sample arrays: its rays from :func:`~core.lights.point_light_rays`."""
+def _trace_hard(out: DirectResult, caster: RayCaster, p, n_s, n_g, light) -> None:
+    """:func:`_trace` of a point light of radius 0 (``light.hard``), the same sums in the same order without
+    the (k, m) sample arrays: its rays from ``light.shadow_rays`` (:func:`~core.lights.point_light_rays`)."""
     P = _rgb(light.power, light.name)
     if not np.any(P > 0):
         _skip_all(out, light.name, len(p))
         return
-    rows, weight, start, directions, t_max, lit = point_light_rays(p, n_s, n_g, np.asarray(light.position, np.float64),
-                                                                   caster.epsilon)
+    rows, weight, start, directions, t_max, lit = light.shadow_rays(p, n_s, n_g, caster.epsilon)
     vis = np.where(lit, caster.transmittance(start, directions, t_max, unit=True), 0.0)
     out.shadow_rays["point"] += len(rows)
     out.skipped[light.name] = out.skipped.get(light.name, 0) + len(p) - len(rows)

@@ -141,6 +141,15 @@ class PointLight(_Lamp):
     def sample_toward(self, caster, p, n_s, n_g, samples, rng):
         return _point_like("point", self, None, caster, p, n_s, n_g, samples, rng)
 
+    @property
+    def hard(self) -> bool:
+        """Radius 0: one exact shadow ray per point, :meth:`shadow_rays` (without its (k, 1) samples)."""
+        return max(float(self.radius), 0.0) == 0.0
+
+    def shadow_rays(self, p, n_s, n_g, epsilon: float) -> tuple:
+        """:func:`point_light_rays` toward this light (of radius 0) from points p with normals n_s, n_g."""
+        return point_light_rays(p, n_s, n_g, np.asarray(self.position, np.float64), epsilon)
+
 
 @dataclass(frozen=True)
 class SpotLight(_Lamp):
@@ -389,11 +398,6 @@ def point_light_rays_numpy(p: np.ndarray, n_s: np.ndarray, n_g: np.ndarray, c: n
     dist = norms(segment)
     directions = np.divide(segment, dist[:, None], out=np.zeros_like(segment), where=dist[:, None] > 0)
     return rows, weight, start, directions, np.maximum(dist - epsilon, 0.0), dist > 0
-
-
-def is_hard_point(emitter) -> bool:
-    """A point light of radius 0: one exact shadow ray per point (:func:`point_light_rays`)."""
-    return type(emitter) is PointLight and max(float(emitter.radius), 0.0) == 0.0
 
 
 def _point_like(kind, light, attenuation, caster, p, n_s, n_g, samples, rng):

@@ -353,7 +353,8 @@ def _self_check_gathering(lib, rng) -> str | None:
     want = real_rays.tally_real_rays_numpy(sums[0], cells, w, hits, o, d)
     got = tally_real_rays(lib, sums[1], cells, w, hits, o, d)
     same = all(np.array_equal(x, y) for x, y in zip(want, got))
-    if not (same and all(np.array_equal(getattr(sums[0], f), getattr(sums[1], f)) for f in ("rot_sum", "count", "r_min"))):
+    same &= all(np.array_equal(getattr(sums[0], f), getattr(sums[1], f)) for f in ("rot_sum", "count", "r_min"))
+    if not same:
         return "gathering tallies differ"
     return _self_check_lights(lib, rng)
 

@@ -372,7 +372,7 @@ def test_albedo_interpolates_texture_uv_and_returns_constant_colours():
 def test_point_lights_of_radius_0_cast_the_rays_their_samples_would(monkeypatch):
     """A hard point light takes a short path (its rays straight from point_light_rays, compiled or numpy):
     the same E, rays and skipped points to the bit as the general path through its (k, 1) samples."""
-    from pdic.core import direct, native_kernels
+    from pdic.core import native_kernels
     from pdic.core.lights import point_light_rays_numpy
 
     rng = np.random.default_rng(4)
@@ -385,10 +385,11 @@ def test_point_lights_of_radius_0_cast_the_rays_their_samples_would(monkeypatch)
     n_s = n + rng.normal(scale=0.3, size=n.shape)  # bent shading normals: some see a light the face does not
     p[7] = lights[1].position  # a point at a light receives nothing from it
     caster = RayCaster(s.geometry.positions, s.extent)
-    short, library = direct.is_hard_point, native_kernels.library
-    monkeypatch.setattr(direct, "is_hard_point", lambda emitter: False)
+    library = native_kernels.library
+    monkeypatch.setattr(sc.PointLight, "hard", False)
     runs = {"general": direct_irradiance(s, caster, p, n_s, n, 1, np.random.default_rng(0))}
-    monkeypatch.setattr(direct, "is_hard_point", short)
+    monkeypatch.undo()
+    assert lights[0].hard and not sc.PointLight("soft", np.zeros(3), np.ones(3), radius=0.1).hard
     monkeypatch.setattr(native_kernels, "library", lambda: None)
     runs["numpy"] = direct_irradiance(s, caster, p, n_s, n, 1, np.random.default_rng(0))
     monkeypatch.setattr(native_kernels, "library", library)
