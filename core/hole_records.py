@@ -31,11 +31,45 @@ from .sky_gathering import gather_sky
 from .validity import sample_validity
 
 
+@dataclass(frozen=True)
+class TexelVerdicts:
+    """What a target's texel samples are, before any record is read: inside (n,) bool, inside geometry; weights
+    (n,), each sample's share of its texel's indirect light (:func:`core.validity.indirect_weights`);
+    crevice (c,) int64, the samples that gather their own record (deviation: crevice-records; empty
+    without it or at Preview); crevice_rays, the rays that test cast."""
+
+    inside: np.ndarray
+    weights: np.ndarray
+    crevice: np.ndarray
+    crevice_rays: int
+
+
+def texel_verdicts(scene, caster, density: PhotonDensity, target_index: int, points, texel_size: float, stream: int,
+                   params: CacheParameters, settings: BakeSettings, executor: Executor, progress: Progress, stats,
+                   contact=None, centre_triangle: np.ndarray | None = None) -> TexelVerdicts:
+    """Texel validity (:func:`core.validity.sample_validity`) and, at Final, which valid samples lie in crevices
+    (:func:`core.crevice_records.crevice_samples`): they need the photons, not the records, so a bake runs them
+    beside pass 2 where a core is free (:func:`core.pipeline.indirect_at_targets`). Arguments as
+    :func:`indirect_at_texels`."""
+    inside, weights = sample_validity(scene, caster, density, target_index, points, texel_size, stream, params.R_min,
+                                      settings, executor, progress, stats, contact=contact,
+                                      centre_triangle=centre_triangle)
+    crevice, rays = np.zeros(0, np.int64), 0
+    if settings.refine and settings.deviations.crevice_records:  # deviation: crevice-records
+        with stats.stage("validity"):
+            progress.begin("Texel samples in crevices")
+            valid = np.flatnonzero(~inside)
+            found, rays = crevice_samples(caster, points.p[valid], points.n_geometric[valid], params, executor,
+                                          progress)
+            crevice = valid[found]
+    return TexelVerdicts(inside, weights, crevice, rays)
+
+
 def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: GatherSources | None,
                        cache: IrradianceCache, target_index: int, points, texel_size: float, stream: int,
                        params: CacheParameters, settings: BakeSettings, executor: Executor, progress: Progress,
-                       stats, sky: np.ndarray | None = None, contact=None, centre_triangle: np.ndarray | None = None
-                       ) -> tuple[np.ndarray, IrradianceCache, np.ndarray]:
+                       stats, sky: np.ndarray | None = None, contact=None, centre_triangle: np.ndarray | None = None,
+                       verdicts: TexelVerdicts | None = None) -> tuple[np.ndarray, IrradianceCache, np.ndarray]:
     """Texel validity, then Equation 3 with hole records for one target: (E (n, 3), its hole records,
     the samples' shares of their texels' indirect light (n,), :func:`core.validity.indirect_weights`).
 
@@ -46,23 +80,18 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
         :mod:`core.sky_gathering`): E is then (n, 6), the records' sky in channels 3-5; or None.
     contact : :class:`core.contact.ContactFaces` for texel validity (deviation: contact-faces), or None.
     centre_triangle : the target's :attr:`core.texels.TargetRaster.centre_triangle` for texel validity, or None.
+    verdicts : the target's :func:`texel_verdicts`, computed already (beside pass 2), or None.
     """
     if density is None or len(points) == 0:  # no records: the sky stays the texels' own (3 channels)
         return np.zeros((len(points), 3)), IrradianceCache(), points.weight.astype(np.float64)
     E = np.zeros((len(points), 3 if sky is None else 6))
-    inside, weights = sample_validity(scene, caster, density, target_index, points, texel_size, stream, params.R_min,
-                                      settings, executor, progress, stats, contact=contact,
-                                      centre_triangle=centre_triangle)
-    valid = np.flatnonzero(~inside)
+    if verdicts is None:
+        verdicts = texel_verdicts(scene, caster, density, target_index, points, texel_size, stream, params, settings,
+                                  executor, progress, stats, contact, centre_triangle)
+    weights, crevice = verdicts.weights, verdicts.crevice
+    valid = np.setdiff1d(np.flatnonzero(~verdicts.inside), crevice, assume_unique=True)
     with stats.stage("interpolate"):
-        crevice, rays = np.zeros(0, np.int64), 0
-        if sources is not None and settings.deviations.crevice_records:  # deviation: crevice-records
-            progress.begin("Texel samples in crevices")
-            found, rays = crevice_samples(caster, points.p[valid], points.n_geometric[valid], params, executor,
-                                          progress)
-            crevice = valid[found]
-            valid = np.setdiff1d(valid, crevice, assume_unique=True)
-        crevice_counters = {"crevice_samples": len(crevice), "crevice_distance_rays": rays}
+        crevice_counters = {"crevice_samples": len(crevice), "crevice_distance_rays": verdicts.crevice_rays}
         gathering = _CreviceGathering(scene, caster, sources, points.p[crevice], points.n_shading[crevice], params,
                                       settings, executor, progress)
         try:

@@ -44,7 +44,9 @@ Schema (``schema_version`` 1)
     :meth:`core.stats.BakeStats.as_dict` plus the add-on's own stages:
     ``seconds`` (dict stage -> wall seconds, float; with indirect light on more than one thread the
     ``direct`` stage runs on a thread of its own beside passes 2-3 and the first target's texels'
-    stage, and ``direct_wait`` is the time the bake then waited for it, if any), ``seconds_beside``
+    stage, and ``direct_wait`` is the time the bake then waited for it, if any; ``validity``, texel
+    validity and the crevice test, likewise beside pass 2 once the photons are traced, and
+    ``verdicts_wait``), ``seconds_beside``
     (list of the stages that ran beside others, absent when none did), ``seconds_total`` (float, s:
     the stages' sum, those beside left out), ``counters`` (dict name -> int or float: photons,
     records, rays cast/saved, texels, ...), ``kernels`` (str: how Equation 3 ran, ``"compiled (<library>)"`` or

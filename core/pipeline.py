@@ -36,7 +36,7 @@ from .direct import shade_direct
 from .direct_footprint import footprint_direct
 from .executor import Beside, Executor, Progress, default_workers, serial_executor
 from .hit_radiance import HitGrid
-from .hole_records import indirect_at_texels, interpolate_filling_holes  # noqa: F401  (re-exported)
+from .hole_records import indirect_at_texels, interpolate_filling_holes, texel_verdicts  # noqa: F401  (re-exported)
 from .interpolation import CacheLookup
 from .irradiance_cache import CacheParameters, IrradianceCache, cache_from_photons
 from .lightmaps import write_lightmaps
@@ -491,6 +491,28 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
     cache_key = store.key("cache", photon_key, params, settings.refine, settings.hemisphere_theta,
                           settings.hemisphere_phi, settings.reuse_photon_paths, settings.deviations)
     passes: list = []  # (cache, photons, lighting) once computed or read, plus what holes read
+    keys = [store.key("indirect", cache_key, t.key, settings.gradients, settings.direct_footprint_side)
+            for t in targets]
+    stored = [store.get("indirect", key) for key in keys]  # None: this target's texels' stage runs
+    verdicts: dict = {}  # target index -> its texel verdicts, once computed beside pass 2
+    beside = [_InLine()]
+
+    def verdicts_beside(density: PhotonDensity) -> None:
+        """Start the texel verdicts of the targets whose indirect light is not stored, on a thread of their own
+        beside pass 2 (they need the photons, not the records): Sponza 16 texels/m leaves a core idle for
+        ~7 s there, besides what the direct light fills."""
+        todo = [(index, t) for index, t in enumerate(targets) if len(t.points) and stored[index] is None]
+        if not (todo and run.executor.in_process and run.executor.workers > 1):
+            return
+
+        def compute(side: "_Run"):
+            for index, t in todo:
+                verdicts[index] = texel_verdicts(side.scene, side.caster(), density, index, t.points, t.texel_size,
+                                                 t.stream, params, settings, side.executor, side.progress, side.stats,
+                                                 side.contact(), t.raster.centre_triangle)
+
+        beside[0] = _Beside(run, "verdicts", compute, lambda: None)
+        beside[0].start()
 
     def passes_1_to_3():
         photons = store.memoise("photons", photon_key,
@@ -498,28 +520,35 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
                                                                    run.executor, run.progress, run.stats),
                                                         params, settings, run.progress, run.stats))
         direct.start()
-        return build_cache(run, photons, params)
+        return build_cache(run, photons, params, verdicts_beside)
 
     def texels(index: int, t: TargetTexels):
         if not passes:
             passes.append(store.memoise("cache", cache_key, passes_1_to_3))
             passes.append(_hole_sources(run, passes[0], params))
         (cache, _, _), (density, sources) = passes
+        beside[0]()  # the verdicts computed beside pass 2, if any
         shaded.append(t)
         name = f"{run.scene.targets[index].name} ({index + 1} of {len(targets)})" if len(targets) > 1 else ""
         with run.progress.naming(name):
             return indirect_at_texels(run.scene, run.caster(), density, sources, cache, index, t.points,
                                       t.texel_size, t.stream, params, settings, run.executor, run.progress, run.stats,
-                                      run.sky, run.contact(), t.raster.centre_triangle)
+                                      run.sky, run.contact(), t.raster.centre_triangle, verdicts.pop(index, None))
 
     shaded: list = []
-    for index, t in enumerate(targets):  # rasterise_targets' list: scene.targets' order
-        key = store.key("indirect", cache_key, t.key, settings.gradients, settings.direct_footprint_side)
-        E, t.holes, t.indirect_weight = store.memoise("indirect", key, lambda: texels(index, t))
-        t.E_indirect = E[:, :3]
-        direct()  # a target whose indirect light was stored reaches here without the texels' stage
-        if run.sky is not None:  # deviation: sky-gathering: the world's light belongs to the direct-light image
-            t.E_direct = t.E_direct + (E[:, 3:] if E.shape[1] > 3 else _sky_without_records(run, t))
+    try:
+        for index, t in enumerate(targets):  # rasterise_targets' list: scene.targets' order
+            if stored[index] is None:
+                stored[index] = texels(index, t)
+                store.put("indirect", keys[index], stored[index])
+            E, t.holes, t.indirect_weight = stored[index]
+            t.E_indirect = E[:, :3]
+            direct()  # a target whose indirect light was stored reaches here without the texels' stage
+            if run.sky is not None:  # deviation: sky-gathering: the world's light belongs to the direct-light image
+                t.E_direct = t.E_direct + (E[:, 3:] if E.shape[1] > 3 else _sky_without_records(run, t))
+    except BaseException:
+        beside[0].stop()
+        raise
     run.stats.set(targets_shaded_indirect=len(shaded))
     cache, photons, lighting = passes[0] if passes else (store.get("cache", cache_key) or (IrradianceCache(), None, None))
     run.stats.set(hole_records=int(sum(len(t.holes) for t in targets if t.holes is not None)))
@@ -543,15 +572,18 @@ def _sky_without_records(run: "_Run", t: TargetTexels) -> np.ndarray:
     return E
 
 
-def build_cache(run: "_Run", photons: PhotonMap, params: CacheParameters
+def build_cache(run: "_Run", photons: PhotonMap, params: CacheParameters, density_ready=None
                 ) -> tuple[IrradianceCache, PhotonMap, PhotonLighting | None]:
-    """Pass 2 (Algorithm 1) and, for Final quality, pass 3: (cache, photons, the photons' lighting)."""
+    """Pass 2 (Algorithm 1) and, for Final quality, pass 3: (cache, photons, the photons' lighting).
+    density_ready : called with the photons' :class:`PhotonDensity` before Algorithm 1 starts, or None."""
     if len(photons) == 0:
         return IrradianceCache(), photons, None
     settings, progress, stats = run.settings, run.progress, run.stats
     progress.begin("Pass 2: irradiance cache")
     with stats.stage("cache"):
         density = PhotonDensity(photons, run.executor.workers)
+        if density_ready is not None:
+            density_ready(density)
         cache, zones, lighting, build = cache_from_photons(density, params, settings.seed, progress, run.caster())
     stats.set(records=build.records, kd_queries=build.kd_queries, R_min=params.R_min, R_max=params.R_max,
               wall_rays=build.wall_rays, photons_uncovered_after_clamp=sum(build.uncovered_after_clamp))

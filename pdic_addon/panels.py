@@ -36,6 +36,7 @@ STAGE_LABELS = (
     ("bvh", "Build BVH"),
     ("rasterise", "Rasterise texels"),
     ("validity", "Texel validity"),
+    ("verdicts_wait", "Waiting for texel validity"),
     ("direct", "Direct light"),
     ("direct_wait", "Waiting for direct light"),
     ("photons", "Pass 1: photons"),
@@ -83,7 +84,7 @@ def stats_rows(stats: dict) -> list[tuple[str, str]]:
     """
     rows: list[tuple[str, str]] = []
     seconds = stats.get("seconds", {})
-    beside = stats.get("seconds_beside", [])  # ran beside other stages (the direct light beside passes 2-3)
+    beside = stats.get("seconds_beside", [])  # ran beside other stages (direct light, validity beside pass 2)
     known = {k for k, _ in STAGE_LABELS}
     for key, label in STAGE_LABELS:
         if key in seconds:

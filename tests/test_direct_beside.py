@@ -1,6 +1,6 @@
-"""The direct light runs beside passes 2-3, on a thread of its own (issue 12: pass 2's serial stretches
-leave a core idle). It must compute what it computes in line, count what it casts, stop with the bake
-and pass its errors on."""
+"""The direct light runs beside passes 2-3, and texel validity beside pass 2, each on a thread of its own
+(issue 12: pass 2's serial stretches leave a core idle). They must compute what they compute in line, count
+what they cast, stop with the bake and pass their errors on."""
 import threading
 import time
 
@@ -36,9 +36,9 @@ def test_the_direct_light_beside_passes_2_and_3_is_the_direct_light_in_line(thre
     seconds = beside.stats["seconds"]
     assert "direct" in seconds
     if threads > 1:  # its time overlaps passes 2-3: listed, not summed (what the bake waited for it is)
-        assert beside.stats["seconds_beside"] == ["direct"]
+        assert beside.stats["seconds_beside"] == ["direct", "validity"]  # texel validity beside pass 2 too
         assert beside.stats["seconds_total"] == pytest.approx(
-            sum(v for k, v in seconds.items() if k != "direct"), abs=1e-3)
+            sum(v for k, v in seconds.items() if k not in ("direct", "validity")), abs=1e-3)
         assert 0.0 < beside.stats["counters"]["embree_share_direct"] <= 1.0
     else:  # one thread: in line, as before
         assert "seconds_beside" not in beside.stats
@@ -77,12 +77,17 @@ def test_the_texels_stage_beside_the_direct_light_computes_and_counts_what_it_do
     same maps and the same count of those tests' rays as a bake with everything in line on one thread."""
     scene = box_on_ground()
     two, one = (bake(scene, preset("FINAL", threads=threads, **FINAL)) for threads in (2, 1))
-    assert two.stats["seconds_beside"] == ["direct"]
+    assert two.stats["seconds_beside"] == ["direct", "validity"]
     for name in one.direct:
         assert np.array_equal(two.direct[name], one.direct[name]), name
         assert np.array_equal(two.indirect[name], one.indirect[name]), name
     a, b = two.stats["counters"], one.stats["counters"]
     assert a["contact_rays"] == b["contact_rays"] > a["texel_samples_in_contact"] > 0
+    # texel validity and the crevice test ran beside pass 2 on two threads, in line on one: the same verdicts
+    for key in ("texel_samples_inside_geometry", "texel_samples_covered", "validity_rays", "crevice_samples",
+                "crevice_distance_rays", "rays_cast"):
+        assert a[key] == b[key], key
+    assert a["texel_samples_inside_geometry"] > 0 and a["crevice_samples"] > 0
 
 
 def test_a_cancel_during_the_texels_stage_stops_the_direct_light_beside_it():
