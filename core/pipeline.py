@@ -498,21 +498,8 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
     beside = [_InLine()]
 
     def verdicts_beside(density: PhotonDensity) -> None:
-        """Start the texel verdicts of the targets whose indirect light is not stored, on a thread of their own
-        beside pass 2 (they need the photons, not the records): Sponza 16 texels/m leaves a core idle for
-        ~7 s there, besides what the direct light fills."""
         todo = [(index, t) for index, t in enumerate(targets) if len(t.points) and stored[index] is None]
-        if not (todo and run.executor.in_process and run.executor.workers > 1):
-            return
-
-        def compute(side: "_Run"):
-            for index, t in todo:
-                verdicts[index] = texel_verdicts(side.scene, side.caster(), density, index, t.points, t.texel_size,
-                                                 t.stream, params, settings, side.executor, side.progress, side.stats,
-                                                 side.contact(), t.raster.centre_triangle)
-
-        beside[0] = _Beside(run, "verdicts", compute, lambda: None)
-        beside[0].start()
+        beside[0] = _start_verdicts(run, todo, density, params, verdicts)
 
     def passes_1_to_3():
         photons = store.memoise("photons", photon_key,
@@ -557,6 +544,26 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
             cache = cache.extend(t.holes)
     run.stats.set(records_total=len(cache))
     return cache, photons, lighting
+
+
+def _start_verdicts(run: "_Run", todo: list, density: PhotonDensity, params: CacheParameters,
+                    verdicts: dict) -> "_Beside | _InLine":
+    """Start the texel verdicts (:func:`texel_verdicts`) of ``todo`` [(index, target), ...], the targets whose
+    indirect light is not stored, on a thread of their own beside pass 2 (they need the photons, not the
+    records: Sponza 16 texels/m leaves a core idle for ~7 s there, besides what the direct light fills),
+    into ``verdicts`` (index -> verdicts). Nothing to do, or not on this process's cores: in line later."""
+    if not (todo and run.executor.in_process and run.executor.workers > 1):
+        return _InLine()
+
+    def compute(side: "_Run"):
+        for index, t in todo:
+            verdicts[index] = texel_verdicts(side.scene, side.caster(), density, index, t.points, t.texel_size,
+                                             t.stream, params, run.settings, side.executor, side.progress,
+                                             side.stats, side.contact(), t.raster.centre_triangle)
+
+    beside = _Beside(run, "verdicts", compute, lambda: None)
+    beside.start()
+    return beside
 
 
 def _sky_without_records(run: "_Run", t: TargetTexels) -> np.ndarray:
