@@ -1,8 +1,10 @@
-"""Compiled kernels of Equation 3 and of the albedo at hits, with the numpy code they replace as the fallback.
+"""Compiled kernels of Equation 3, the albedo at hits, pass 3's gathering rays and hits and point lights'
+shadow rays, with the numpy code they replace as the fallback.
 
 Equation 3 is looked up at every texel sample, at every gathering ray's hit and at every hit-grid cell,
 and its numpy form spends most of its time making arrays per (point, record) pair; the albedo is read at
-every photon and gathering hit. The loops in ``core/native/pdic_native.c`` do the same floating-point
+every photon and gathering hit; pass 3 casts ~100 M gathering rays, each set up, tallied and its hit
+classified, and shadow rays to point lights leave every gap walk's vertex. The loops in ``core/native/pdic_native.c`` do the same floating-point
 operations in the same order as the numpy functions they stand for (named in their docstrings below),
 so a bake gives the same light maps to the bit either way (tests/test_native_kernels.py;
 ``tools/golden.py``).
@@ -369,9 +371,13 @@ def _self_check_lights(lib, rng) -> str | None:
     want = point_light_rays_numpy(p, n_s, n_g, c, 1e-3)
     if not all(np.array_equal(x, y) for x, y in zip(want, point_light_rays(lib, p, n_s, n_g, c, 1e-3))):
         return "point light rays differ"
-    caster, sources, hits = _grid_hits(rng, 30, 300)
+    return _self_check_hits(lib, rng)
+
+
+def _self_check_hits(lib, rng) -> str | None:
     from . import real_rays
 
+    caster, sources, hits = _grid_hits(rng, 30, 300)
     for n_record in (hits[-1], None):
         want = real_rays.hit_cells_numpy(caster, sources, *hits[:-1], n_record)
         got = hit_cells(lib, caster, sources.hit_grid, *hits[:-1], real_rays.gap_tests(sources, n_record))
