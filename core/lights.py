@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import sampling
+from . import native_kernels, sampling
 from .sampling import concentric_disk, cosine_hemisphere, orthonormal_basis, uniform_cone, uniform_sphere, uniform_triangle
 from .vectors import dots, norms, unit
 
@@ -372,8 +372,6 @@ def point_light_rays(p: np.ndarray, n_s: np.ndarray, n_g: np.ndarray, c: np.ndar
     the points lit at a positive weight, weight (k,) cos_s / (4 pi d^2), start (k, 3) each ray's origin
     pushed ``epsilon`` off its surface, directions (k, 3) unit (0 for a zero-length segment), t_max (k,),
     open (k,) bool: a positive length). Compiled (:mod:`core.native_kernels`) when the library is there."""
-    from . import native_kernels  # here: native_kernels' check imports this module
-
     lib = native_kernels.library()
     if lib is not None:
         return native_kernels.point_light_rays(lib, p, n_s, n_g, c, epsilon)
@@ -382,7 +380,7 @@ def point_light_rays(p: np.ndarray, n_s: np.ndarray, n_g: np.ndarray, c: np.ndar
 
 def point_light_rays_numpy(p: np.ndarray, n_s: np.ndarray, n_g: np.ndarray, c: np.ndarray, epsilon: float) -> tuple:
     """:func:`point_light_rays` in numpy (the compiled kernel's reference)."""
-    from .rays import offset_origins
+    from .rays import shadow_segments  # here: core.rays imports core.scene, which imports this module
 
     delta = c - p
     D = norms(delta)
@@ -392,12 +390,8 @@ def point_light_rays_numpy(p: np.ndarray, n_s: np.ndarray, n_g: np.ndarray, c: n
     cos_s = dots(n_s[can], w)
     weight = cos_s / (4.0 * np.pi * d * d)
     ok = (cos_s > 0) & (dots(n_g[can], w) > 0) & (weight > 0)
-    rows, w, weight = can[ok], w[ok], weight[ok]
-    start = offset_origins(p[rows], n_g[rows], w, epsilon)  # w: the ray's direction toward c
-    segment = c - start
-    dist = norms(segment)
-    directions = np.divide(segment, dist[:, None], out=np.zeros_like(segment), where=dist[:, None] > 0)
-    return rows, weight, start, directions, np.maximum(dist - epsilon, 0.0), dist > 0
+    rows = can[ok]
+    return (rows, weight[ok], *shadow_segments(p[rows], n_g[rows], np.broadcast_to(c, (len(rows), 3)), epsilon))
 
 
 def _point_like(kind, light, attenuation, caster, p, n_s, n_g, samples, rng):

@@ -495,11 +495,12 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
             for t in targets]
     stored = [store.get("indirect", key) for key in keys]  # None: this target's texels' stage runs
     verdicts: dict = {}  # target index -> its texel verdicts, once computed beside pass 2
-    beside = [_InLine()]
+    beside = _InLine()  # the verdicts' stage beside pass 2, once started
 
     def verdicts_beside(density: PhotonDensity) -> None:
+        nonlocal beside
         todo = [(index, t) for index, t in enumerate(targets) if len(t.points) and stored[index] is None]
-        beside[0] = _start_verdicts(run, todo, density, params, verdicts)
+        beside = _start_verdicts(run, todo, density, params, verdicts)
 
     def passes_1_to_3():
         photons = store.memoise("photons", photon_key,
@@ -514,7 +515,7 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
             passes.append(store.memoise("cache", cache_key, passes_1_to_3))
             passes.append(_hole_sources(run, passes[0], params))
         (cache, _, _), (density, sources) = passes
-        beside[0]()  # the verdicts computed beside pass 2, if any
+        beside()  # the verdicts computed beside pass 2, if any
         shaded.append(t)
         name = f"{run.scene.targets[index].name} ({index + 1} of {len(targets)})" if len(targets) > 1 else ""
         with run.progress.naming(name):
@@ -534,7 +535,7 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
             if run.sky is not None:  # deviation: sky-gathering: the world's light belongs to the direct-light image
                 t.E_direct = t.E_direct + (E[:, 3:] if E.shape[1] > 3 else _sky_without_records(run, t))
     except BaseException:
-        beside[0].stop()
+        beside.stop()
         raise
     run.stats.set(targets_shaded_indirect=len(shaded))
     cache, photons, lighting = passes[0] if passes else (store.get("cache", cache_key) or (IrradianceCache(), None, None))

@@ -93,6 +93,25 @@ def offset_origins(origins: np.ndarray, normals: np.ndarray | None, directions: 
     return origins + (epsilon * side)[:, None] * normals
 
 
+def shadow_segments(points: np.ndarray, normals: np.ndarray | None, targets: np.ndarray, epsilon: float,
+                    target_normals: np.ndarray | None = None) -> tuple:
+    """The rays :meth:`RayCaster.transmittance_between` casts from points to targets (n, 3): (start (n, 3) each
+    point pushed ``epsilon`` off its surface toward its target, directions (n, 3) unit (0 for a zero-length
+    segment), t_max (n,) the segment's length, less epsilon when the target has no normal, at least 0,
+    open (n,) bool: a positive length). A target with a normal is pushed off its surface as well."""
+    points = np.asarray(points, dtype=np.float64)
+    targets = np.asarray(targets, dtype=np.float64)
+    toward = _unit(targets - points)
+    start = offset_origins(points, normals, toward, epsilon)
+    end = targets if target_normals is None else offset_origins(targets, target_normals, -toward, epsilon)
+    segment = end - start
+    dist = norms(segment)
+    directions = np.divide(segment, dist[:, None], out=np.zeros_like(segment), where=dist[:, None] > 0)
+    # Stop short of the far end by epsilon so a target on a surface never hits it.
+    t_max = np.maximum(dist - (epsilon if target_normals is None else 0.0), 0.0)
+    return start, directions, t_max, dist > 0
+
+
 class RayCaster:
     """Closest-hit and occlusion queries against a fixed set of triangles.
 
@@ -344,17 +363,8 @@ class RayCaster:
         it sits flush with) can occlude it, at any angle of incidence.
         A zero-length segment passes nothing.
         """
-        points = np.asarray(points, dtype=np.float64)
-        targets = np.asarray(targets, dtype=np.float64)
-        toward = _unit(targets - points)
-        start = self.offset_origins(points, normals, toward)
-        end = targets if target_normals is None else self.offset_origins(targets, target_normals, -toward)
-        segment = end - start
-        dist = norms(segment)
-        directions = np.divide(segment, dist[:, None], out=np.zeros_like(segment), where=dist[:, None] > 0)
-        # Stop short of the far end by epsilon so a target on a surface never hits it.
-        t_max = np.maximum(dist - (self.epsilon if target_normals is None else 0.0), 0.0)
-        return np.where(dist > 0, self.transmittance(start, directions, t_max, unit=True), 0.0)
+        start, directions, t_max, open_ = shadow_segments(points, normals, targets, self.epsilon, target_normals)
+        return np.where(open_, self.transmittance(start, directions, t_max, unit=True), 0.0)
 
 
 def _embree_scene(positions: np.ndarray):
