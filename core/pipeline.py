@@ -57,7 +57,8 @@ class BakeResult:
     lightmaps : target name -> (H, W, 4) float32 linear RGBA; RGB = E / pi (Cycles' Diffuse
         Direct+Indirect without colour), alpha = 1 where the texel is covered or dilated.
     centre_inside : target name -> (H, W) bool, texels whose centre lies on a triangle
-        (the texels Cycles bakes; comparisons use this mask).
+        (the texels Cycles bakes, and those whose centre lies on a chart's right or upper edge,
+        which it does not: comparisons use this mask and Cycles' own coverage).
     buried : target name -> (H, W) bool, covered texels partly or wholly inside closed geometry (a
         floor's texels a wall standing on it cuts or covers): Cycles bakes their footprint's mean
         with that part at 0, the light map holds their whole neighbours' light (deviation:

@@ -54,8 +54,11 @@ class TexelSamples:
     weight : (s,) float32, 1 / (samples in the texel): a texel's weights sum to 1.
     conservative : (s,) bool, True for a clipped-centroid sample (texel with no sub-sample).
     coverage : (height, width) bool, texels with at least one sample.
-    centre_inside : (height, width) bool, texels whose centre lies inside a triangle
-        (the texels Cycles bakes; compare against Cycles on this mask).
+    centre_inside : (height, width) bool, texels whose centre lies inside a triangle or on its
+        edge: the texels Cycles bakes, but for centres on an edge, which Blender's rasteriser takes
+        on a triangle's left and lower edges only (xatlas puts chart corners on texel centres, so
+        a chart's outer rows hold such centres). Compare with Cycles over this mask and Cycles'
+        own coverage (a bake without margin).
     centre_triangle : (height, width) int32 the triangle under each texel's centre (the one its
         bake samples lie on in Cycles), -1 where ``centre_inside`` is False.
     width, height : light-map size in texels.
@@ -132,7 +135,7 @@ def rasterize(uv: np.ndarray, width: int, height: int, samples_per_axis: int = 2
     # -- sub-samples: n x n grid per texel, one triangle per point
     sample, tri, bary = _grid_hits(p_texel, width, height, n, map)
 
-    # -- texel centres (Cycles bakes exactly these texels)
+    # -- texel centres (the texels Cycles bakes, and those whose centre lies on an edge)
     centre, centre_tri, _ = _grid_hits(p_texel, width, height, 1, map)
     centre_inside = np.zeros(width * height, bool)
     centre_inside[centre] = True

@@ -191,3 +191,35 @@ def test_cached_references_are_keyed_by_the_light_map_layout():
     finally:
         bpy.data.objects.remove(obj)
         bpy.data.meshes.remove(mesh)
+
+
+def test_cycles_coverage_leaves_out_centres_on_a_charts_edge_that_pdic_bakes(tmp_path):
+    """A chart whose corners lie on texel centres, as xatlas packs them: PDIC's rasteriser counts the centres
+    on its edges as inside, Cycles' bake leaves some of them, and only a margin-0 bake tells which (the
+    bench compares the texels both bake). The coverage is cached per layout."""
+    import bpy
+
+    from pdic.core.raster import rasterize
+    from pdic.pdic_addon.uvmaps import LIGHTMAP_UV
+
+    size = 16
+    corners = np.array([(2.5, 3.5), (10.5, 3.5), (10.5, 9.5), (2.5, 9.5)]) / size  # on texel centres
+    mesh = bpy.data.meshes.new("edge_chart")
+    mesh.from_pydata([(0, 0, 0), (8, 0, 0), (8, 6, 0), (0, 6, 0)], [], [(0, 1, 2, 3)])
+    layer = mesh.uv_layers.new(name=LIGHTMAP_UV)
+    for loop in mesh.loops:
+        layer.data[loop.index].uv = corners[loop.vertex_index]
+    obj = bpy.data.objects.new("edge_chart", mesh)
+    bpy.context.scene.collection.objects.link(obj)
+    try:
+        baked = competitors.cycles_coverage(obj, (size, size), tmp_path)
+        uv = corners[[[0, 1, 2], [0, 2, 3]]].astype(np.float32)
+        pdic = rasterize(uv, size, size, 1).centre_inside.reshape(size, size)
+        assert pdic.sum() == 9 * 7  # every centre on the chart or on its edges
+        assert (baked & ~pdic).sum() == 0 and baked[4:9, 3:10].all()  # Cycles bakes the centres inside
+        assert baked.sum() < pdic.sum()  # ... and leaves some on the edges
+        assert len(list(tmp_path.glob("coverage_16x16_*.npy"))) == 1
+        np.testing.assert_array_equal(competitors.cycles_coverage(obj, (size, size), tmp_path), baked)
+    finally:
+        bpy.data.objects.remove(obj)
+        bpy.data.meshes.remove(mesh)
