@@ -537,10 +537,12 @@ def markdown(c: dict) -> str:
            f"wall s beside it. PDIC: core bake at preset defaults.\n"]
     for key, s in c["scenes"].items():
         inner = f" ({s['interior_texels']:,} interior)" if "interior_texels" in s else ""
+        texels = "texels"  # runs before session 50 compared over PDIC's texels alone
         if "texels_pdic_alone" in s:
+            texels = "texels both bake"
             inner += (f"; {s['texels_pdic_alone']:,} more PDIC bakes alone, {s['texels_cycles_alone']:,} Cycles "
                       f"alone, not compared")
-        out.append(f"\n### {s['label']}: {s['width']}x{s['height']}, {s['texels']:,} texels both bake{inner}, "
+        out.append(f"\n### {s['label']}: {s['width']}x{s['height']}, {s['texels']:,} {texels}{inner}, "
                    f"{s['triangles']:,} triangles; reference {s['reference_spp']} spp x 2 (its own noise per texel: "
                    f"{_pct(s['reference_noise']['all'])} % all, {_pct(s['reference_noise']['indirect'])} % indirect)\n\n")
         rows = []
