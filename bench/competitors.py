@@ -272,7 +272,7 @@ def cycles_coverage(obj, size, cache: Path) -> np.ndarray:
     """(H, W) bool: the texels Cycles bakes itself on ``obj``'s PDIC_Lightmap (a 1-spp direct-light bake
     without margin: its alpha), cached in ``cache`` per :func:`layout_key` as the references are. With a
     margin Cycles fills the texels round each chart from the faces beside it, so its margin-16 bakes say
-    nothing of which texels it baked."""
+    nothing of which texels it baked (bench/cornell_direct.py masks its comparison with this too)."""
     from pdic.bench.cycles_reference import cycles_bake_full
     from pdic.pdic_addon.uvmaps import LIGHTMAP_UV
 
@@ -439,8 +439,9 @@ def run_scene(key: str, spec: SceneSpec, results: Path) -> dict:
     position, normal, centre = texel_geometry(scene)
     baked = cycles_coverage(obj, size, work)
     mask = centre & baked  # the texels both bake (module docstring)
+    pdic_alone, cycles_alone = int((centre & ~baked).sum()), int((baked & ~centre).sum())
     log("competitors", spec.label, f"{size[0]}x{size[1]}, {int(mask.sum()):,} texels both bake "
-        f"({int((centre & ~baked).sum()):,} PDIC's alone, {int((baked & ~centre).sum()):,} Cycles' alone), "
+        f"({pdic_alone:,} PDIC's alone, {cycles_alone:,} Cycles' alone), "
         f"{scene.geometry.count:,} triangles")
     refs = {kind: reference_pair(obj, size, passes, spec.reference_spp, work) for kind, passes in PASS_SETS.items()}
     from pdic.bench.run import interior_texels
@@ -456,8 +457,8 @@ def run_scene(key: str, spec: SceneSpec, results: Path) -> dict:
     np.savez_compressed(results / f"competitors_crops_{key}.npz", mask=mask[r:r + CROP, c:c + CROP], **cut)
     noise = {k: _seed_noise(a, b, mask) for k, (a, b) in refs.items()}
     return dict(label=spec.label, width=size[0], height=size[1], texels=int(mask.sum()),
-                interior_texels=int((mask & interior).sum()), texels_pdic_alone=int((centre & ~baked).sum()),
-                texels_cycles_alone=int((baked & ~centre).sum()),
+                interior_texels=int((mask & interior).sum()), texels_pdic_alone=pdic_alone,
+                texels_cycles_alone=cycles_alone,
                 triangles=int(scene.geometry.count), ladder=list(spec.ladder), reference_spp=spec.reference_spp,
                 reference_noise=noise, crop_spp=keep, crop_window=list(window), crop_world=list(spec.crop_world),
                 pdic=pdic, cycles=cycles, equal_error=equal_error(cycles, pdic))

@@ -5,7 +5,7 @@
 The Cornell box of the competitors bench (one object, the add-on's ``PDIC_Lightmap`` UVs, point light
 of radius 0). The reference is a pair of Cycles DIRECT bakes (seeds 1, 2; cached in ``--out``);
 errors are noise-corrected against it (bench.competitors.errors: relative RMSE per texel and on
-8x8-texel block means) on the texels both bake (:func:`cycles_baked`). ``edge`` = baked texels within 1 texel of a shadow edge (a 3x3 neighbourhood
+8x8-texel block means) on the texels both bake (:func:`bench.competitors.cycles_coverage`). ``edge`` = baked texels within 1 texel of a shadow edge (a 3x3 neighbourhood
 of the reference varying by >= 10 %), ``flat`` = the others (tests/test_direct_vs_cycles.flat_mask).
 PDIC bakes direct light only with threads=1; CPU s are process time of that bake, and of its direct
 stage's footprint part (from the stats' stage seconds), on a loaded machine.
@@ -17,8 +17,6 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
-
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -49,18 +47,6 @@ def pdic_direct(scene, footprint: bool):
     return result.direct[name], result.centre_inside[name], cpu, result.stats
 
 
-def cycles_baked(obj, size) -> np.ndarray:
-    """(H, W) bool: texels Cycles bakes itself (1 spp, margin 0), not fills from its margin.
-
-    A chart-border texel whose centre lies exactly on a UV edge is inside for PDIC but not for
-    Blender's rasteriser; with a margin Cycles copies a neighbour into it (the competitors bench
-    counts those: 0.5 % of Cornell's texels, most of its per-texel direct error)."""
-    from pdic.bench.cycles_reference import cycles_bake_full
-    from pdic.pdic_addon.uvmaps import LIGHTMAP_UV
-
-    return cycles_bake_full([obj], LIGHTMAP_UV, size[0], size[1], {"DIRECT"}, 1, margin=0).coverage[obj.name]
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--res", type=int, default=256)
@@ -75,7 +61,7 @@ def main(argv=None):
     target = scene.targets[0]
     size = (target.width, target.height)
     _, _, centre = comp.texel_geometry(scene)
-    mask = centre & cycles_baked(obj, size)
+    mask = centre & comp.cycles_coverage(obj, size, work)  # texels Cycles bakes itself, not margin fills
     pair = comp.reference_pair(obj, size, frozenset({"DIRECT"}), args.spp, work)
     reference = 0.5 * (pair[0] + pair[1])
     flat = flat_mask(reference, mask)

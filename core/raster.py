@@ -55,10 +55,10 @@ class TexelSamples:
     conservative : (s,) bool, True for a clipped-centroid sample (texel with no sub-sample).
     coverage : (height, width) bool, texels with at least one sample.
     centre_inside : (height, width) bool, texels whose centre lies inside a triangle or on its
-        edge: the texels Cycles bakes, but for centres on an edge, which Blender's rasteriser takes
-        on a triangle's left and lower edges only (xatlas puts chart corners on texel centres, so
-        a chart's outer rows hold such centres). Compare with Cycles over this mask and Cycles'
-        own coverage (a bake without margin).
+        edge: the texels Cycles bakes, but for centres on an edge, of which Blender's rasteriser
+        takes some only (on an axis-aligned chart those on its left and lower edges; xatlas puts
+        chart corners on texel centres, so a chart's outer rows hold such centres). Compare with
+        Cycles over this mask and Cycles' own coverage (a bake without margin).
     centre_triangle : (height, width) int32 the triangle under each texel's centre (the one its
         bake samples lie on in Cycles), -1 where ``centre_inside`` is False.
     width, height : light-map size in texels.
