@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Set up the venv (quick when already set up), then run pytest on the real bpy wheel.
+# Set up the venv (quick when already set up) and, for the whole suite, the browser viewer's
+# Chromium and npm packages (tools/setup_web.sh), then run pytest on the real bpy wheel.
 #
 #   bash tools/test.sh                              # the whole suite (tests/), bpy 5.0.1 / Python 3.11
 #   bash tools/test.sh --py313                      # the whole suite on bpy 5.2.3 / Python 3.13 / numpy 2
@@ -28,4 +29,11 @@ for arg in "$@"; do
         break
     fi
 done
+# The browser viewer tests need Chromium and web/'s npm packages: set them up when the run
+# includes those tests (idempotent, returns at once when ready). A machine that cannot
+# install them still runs every other test; the browser tests then fail naming the script.
+if [[ ${#targets[@]} -gt 0 || "$*" == *viewer_browser* ]]; then
+    bash "$ROOT/tools/setup_web.sh" </dev/null \
+        || echo "test.sh: tools/setup_web.sh failed; the browser viewer tests will fail" >&2
+fi
 exec "$VENV/bin/python" -m pytest "${targets[@]}" -q --durations=15 "$@"
