@@ -140,9 +140,10 @@ WORST_POINTS_PER_AXIS = 8
 
 
 def cycles_footprint(scene, target_index: int, texels: np.ndarray, per_axis: int, rng: np.random.Generator,
-                     blender_52: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(texel (s,), p (s, 3), n (s, 3) shading normals): stratified jittered points over the footprints of
-    ``texels`` (flat indices of target ``target_index``) as Cycles' bake integrates them.
+                     blender_52: bool, geometric: bool = False) -> tuple:
+    """(texel (s,), p (s, 3), n (s, 3) shading normals), and with ``geometric`` (s, 3) geometric normals:
+    stratified jittered points over the footprints of ``texels`` (flat indices of target ``target_index``)
+    as Cycles' bake integrates them.
 
     Blender 5.0 and 5.1 jitter over the centred half-texel square and fold every point into the triangle
     under the texel's centre (:attr:`core.raster.TexelSamples.centre_triangle`), mirrored as
@@ -155,7 +156,7 @@ def cycles_footprint(scene, target_index: int, texels: np.ndarray, per_axis: int
     target = scene.targets[target_index]
     if blender_52:
         fp = footprint_texel_points(scene, target_index, texels, per_axis, rng, 1.0)
-        return fp.texel, fp.p, fp.n_shading
+        return (fp.texel, fp.p, fp.n_shading) + ((fp.n_geometric,) if geometric else ())
     g = scene.geometry
     local = np.flatnonzero(g.areas()[target.triangles] > 0)  # the triangles the light map's raster holds
     centre_triangle = rasterize(target.lightmap_uv[local], target.width, target.height, 1).centre_triangle
@@ -167,8 +168,8 @@ def cycles_footprint(scene, target_index: int, texels: np.ndarray, per_axis: int
     centre = centre_triangle.reshape(-1)[texel]
     uv = target.lightmap_uv[local].astype(np.float64) * [target.width, target.height]
     b = fold_into(uv[centre], pts[..., 0].ravel(), pts[..., 1].ravel())
-    p, n, _ = on_surface(g, g.face_normals(), target.triangles[local[centre]], b)
-    return texel, p, n
+    p, n, n_g = on_surface(g, g.face_normals(), target.triangles[local[centre]], b)
+    return (texel, p, n) + ((n_g,) if geometric else ())
 
 
 def _compared(pdic, pair, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
