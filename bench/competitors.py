@@ -256,7 +256,7 @@ def reference_pair(obj, size, passes, spp: int, cache: Path) -> tuple:
     images = []
     key = layout_key(obj)
     for seed in REFERENCE_SEEDS:
-        path = cache / f"ref_{'_'.join(sorted(passes))}_{size[0]}x{size[1]}_{spp}spp_seed{seed}_{key}.npy"
+        path = reference_path(cache, passes, size, spp, seed, key)
         if path.exists():
             images.append(np.load(path))
             continue
@@ -276,13 +276,23 @@ def cycles_coverage(obj, size, cache: Path) -> np.ndarray:
     from pdic.bench.cycles_reference import cycles_bake_full
     from pdic.pdic_addon.uvmaps import LIGHTMAP_UV
 
-    path = cache / f"coverage_{size[0]}x{size[1]}_{layout_key(obj)}.npy"
+    path = coverage_path(cache, size, layout_key(obj))
     if path.exists():
         return np.load(path)
     coverage = cycles_bake_full([obj], LIGHTMAP_UV, size[0], size[1], {"DIRECT"}, 1, margin=0).coverage[obj.name]
     cache.mkdir(parents=True, exist_ok=True)
     np.save(path, coverage)
     return coverage
+
+
+def reference_path(cache: Path, passes, size, spp: int, seed: int, key: str) -> Path:
+    """Where :func:`reference_pair` keeps one reference bake of ``passes`` for the layout ``key``."""
+    return cache / f"ref_{'_'.join(sorted(passes))}_{size[0]}x{size[1]}_{spp}spp_seed{seed}_{key}.npy"
+
+
+def coverage_path(cache: Path, size, key: str) -> Path:
+    """Where :func:`cycles_coverage` keeps the texels Cycles bakes of the layout ``key``."""
+    return cache / f"coverage_{size[0]}x{size[1]}_{key}.npy"
 
 
 def layout_key(obj) -> str:

@@ -158,9 +158,9 @@ def main(argv=None):
     obj, scene = comp.load_scene(spec, work)
     size = (scene.targets[0].width, scene.targets[0].height)
     key = comp.layout_key(obj)
-    wanted = [work / f"ref_{'_'.join(sorted(comp.PASS_SETS[args.kind]))}_{size[0]}x{size[1]}_"
-                     f"{spec.reference_spp}spp_seed{s}_{key}.npy" for s in comp.REFERENCE_SEEDS]
-    wanted.append(work / f"coverage_{size[0]}x{size[1]}_{key}.npy")
+    wanted = [comp.reference_path(work, comp.PASS_SETS[args.kind], size, spec.reference_spp, seed, key)
+              for seed in comp.REFERENCE_SEEDS]
+    wanted.append(comp.coverage_path(work, size, key))
     missing = [str(w) for w in wanted if not w.exists()]
     if missing:
         sys.exit(f"referee_competitors: not baked for this unwrap ({key}): {', '.join(missing)}")
