@@ -81,7 +81,9 @@ find_base_python() {
 }
 
 start=$SECONDS
-if [[ ! -x "$VENV/bin/python" ]] || ! python_is "$PY" "$VENV/bin/python"; then
+# A venv whose creation was interrupted has its python but no pip: make it again.
+if [[ ! -x "$VENV/bin/python" ]] || ! python_is "$PY" "$VENV/bin/python" \
+        || ! "$VENV/bin/python" -m pip --version >/dev/null 2>&1; then
     BASE_PYTHON="$(find_base_python)"
     say "creating $VENV with $BASE_PYTHON ($("$BASE_PYTHON" --version 2>&1))"
     rm -rf "$VENV"
