@@ -35,15 +35,21 @@ if str(ROOT) not in sys.path:
 RESULTS = ROOT / "bench" / "results" / "competitors"
 
 
-def worst_blocks(pdic: np.ndarray, pair: tuple, mask: np.ndarray, count: int) -> np.ndarray:
-    """(k, 2) block rows and columns of the ``count`` blocks with the largest squared difference of PDIC's
-    block mean from the pair's, less the pair's noise, channels averaged (``bench.competitors.errors``'
-    block term), largest first."""
+def pair_blocks(pair: tuple, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(the pair's mean over each 8x8 block's masked texels (H/8, W/8, 3), its noise (a - b)^2 / 4 there, the
+    blocks holding a masked texel): computed once, read by every image judged."""
     from pdic.bench.competitors import block_means
 
-    (x, blocks), (a, _), (b, _) = (block_means(v, mask) for v in (pdic, pair[0], pair[1]))
-    excess = (((x - 0.5 * (a + b)) ** 2) - (a - b) ** 2 / 4).mean(axis=2)
-    excess = np.where(blocks, excess, -np.inf)
+    (a, blocks), (b, _) = block_means(pair[0], mask), block_means(pair[1], mask)
+    return 0.5 * (a + b), (a - b) ** 2 / 4, blocks
+
+
+def worst_blocks(test: np.ndarray, pair: tuple, count: int) -> np.ndarray:
+    """(k, 2) block rows and columns of the ``count`` blocks with the largest squared difference of ``test``'s
+    block means (H/8, W/8, 3) from the pair's (:func:`pair_blocks`), less the pair's noise, channels averaged
+    (``bench.competitors.errors``' block term), largest first."""
+    ref, noise, blocks = pair
+    excess = np.where(blocks, (((test - ref) ** 2) - noise).mean(axis=2), -np.inf)
     order = np.argsort(excess.ravel())[::-1][:count]
     return np.stack(np.unravel_index(order, excess.shape), axis=1)
 
@@ -78,19 +84,17 @@ def traced_blocks(scene, kind: str, mask: np.ndarray, chosen: np.ndarray, paths:
     return traced / count[:, None], np.sqrt(variance) / count
 
 
-def refereed_block_error(pdic: np.ndarray, pair: tuple, mask: np.ndarray, chosen: np.ndarray,
-                         traced: np.ndarray, traced_se: np.ndarray) -> tuple[float, float]:
-    """(PDIC's noise-corrected relative RMSE over 8x8 block means against the pair, the same with the
-    traced means (their variance subtracted) in place of the pair's at the ``chosen`` blocks)."""
-    from pdic.bench.competitors import block_means
-
-    (x, blocks), (a, _), (b, _) = (block_means(v, mask) for v in (pdic, pair[0], pair[1]))
-    ref = 0.5 * (a + b)
-    sq, noise = (x - ref) ** 2, (a - b) ** 2 / 4
+def refereed_block_error(test: np.ndarray, pair: tuple, chosen: np.ndarray, traced: np.ndarray,
+                         traced_se: np.ndarray) -> tuple[float, float]:
+    """(the noise-corrected relative RMSE of ``test``'s block means (H/8, W/8, 3) against the pair's
+    (:func:`pair_blocks`), the same with the traced means (their variance subtracted) in place of the pair's
+    at the ``chosen`` blocks)."""
+    ref, noise, blocks = (v.copy() for v in pair)
+    sq = (test - ref) ** 2
     before = np.sqrt(max(sq[blocks].mean() - noise[blocks].mean(), 0.0)) / ref[blocks].mean()
     by, bx = chosen[:, 0], chosen[:, 1]
     ref[by, bx] = traced
-    sq[by, bx] = (x[by, bx] - traced) ** 2
+    sq[by, bx] = (test[by, bx] - traced) ** 2
     noise[by, bx] = (traced_se ** 2)[:, None]
     after = np.sqrt(max(sq[blocks].mean() - noise[blocks].mean(), 0.0)) / ref[blocks].mean()
     return float(before), float(after)
@@ -104,7 +108,7 @@ so it is no independent judge there. The "independent" variant leaves such block
 
 def refereed_ladder(obj, spec, kind: str, mask, normal, pair, variants: dict, bench_rows: list, pdic_row: dict
                     ) -> None:
-    """Bake and denoise the ladder again and print, per variant (label -> (chosen blocks, traced means, their
+    """Bake and denoise the ladder again and print (``pair``: :func:`pair_blocks`), per variant (label -> (chosen blocks, traced means, their
     standard errors, PDIC's refereed error)), each rung's refereed block error and Cycles + OIDN's CPU
     seconds at PDIC's refereed error (the bench's CPU seconds per rung)."""
     from pdic.bench import competitors as comp
@@ -119,8 +123,9 @@ def refereed_ladder(obj, spec, kind: str, mask, normal, pair, variants: dict, be
                                                    for m in comp.DENOISERS]:
             cpu = next(r["cpu"] for r in bench_rows if (r["method"], r["kind"], r["spp"]) == (method, kind, spp))
             errors = []
+            test = comp.block_means(img, mask)[0]
             for label, (chosen, traced, traced_se, _) in variants.items():
-                before, after = refereed_block_error(img, pair, mask, chosen, traced, traced_se)
+                before, after = refereed_block_error(test, pair, chosen, traced, traced_se)
                 rows[label].append(dict(method=method, kind=kind, cpu=cpu, error_block=after))
                 errors.append(f"{label} {after:.2%}")
             print(f"  {method:24s} {spp:4d} spp  CPU {cpu:7.1f} s  8x8 against the pair {before:.2%}, refereed: "
@@ -164,19 +169,18 @@ def main(argv=None):
     missing = [str(w) for w in wanted if not w.exists()]
     if missing:
         sys.exit(f"referee_competitors: not baked for this unwrap ({key}): {', '.join(missing)}")
-    pair = tuple(np.load(w) for w in wanted[:2])
     _, normal, centre = comp.texel_geometry(scene)
     mask = centre & np.load(wanted[2])
-    pdic = np.load(work / "pdic_final.npz")[args.kind]
+    pair = pair_blocks(tuple(np.load(w) for w in wanted[:2]), mask)
+    x = comp.block_means(np.load(work / "pdic_final.npz")[args.kind], mask)[0]
 
-    chosen = worst_blocks(pdic, pair, mask, args.blocks)
+    chosen = worst_blocks(x, pair, args.blocks)
     traced, traced_se = traced_blocks(scene, args.kind, mask, chosen, args.paths, args.per_axis, args.seed)
-    before, after = refereed_block_error(pdic, pair, mask, chosen, traced, traced_se)
-    (x, _), (a, _), (b, _) = (comp.block_means(v, mask) for v in (pdic, pair[0], pair[1]))
-    lum_pdic, lum_pair = x[chosen[:, 0], chosen[:, 1]].mean(axis=1), (0.5 * (a + b))[chosen[:, 0], chosen[:, 1]].mean(1)
+    before, after = refereed_block_error(x, pair, chosen, traced, traced_se)
+    lum_pdic, lum_pair = x[chosen[:, 0], chosen[:, 1]].mean(axis=1), pair[0][chosen[:, 0], chosen[:, 1]].mean(1)
     judged = lum_pair >= DARK_PAIR * lum_pdic
     variants = {"all audited": (chosen, traced, traced_se, after)}
-    independent = refereed_block_error(pdic, pair, mask, chosen[judged], traced[judged], traced_se[judged])[1]
+    independent = refereed_block_error(x, pair, chosen[judged], traced[judged], traced_se[judged])[1]
     variants["independent"] = (chosen[judged], traced[judged], traced_se[judged], independent)
     padded = comp.pad_to_blocks(mask, comp.BLOCK)
     counts = padded.reshape(padded.shape[0] // comp.BLOCK, comp.BLOCK, -1, comp.BLOCK).sum(axis=(1, 3))
@@ -184,7 +188,7 @@ def main(argv=None):
     print(f"{spec.label}, {args.kind}: the {len(chosen)} 8x8 blocks holding most of PDIC Final's squared block error "
           f"(block, texels both bake, E/pi luminance: PDIC / Cycles pair / path-traced +- its standard error)")
     for (by, bx), t, s in zip(chosen, traced, traced_se):
-        mine, theirs, truth = float(x[by, bx].mean()), float((0.5 * (a + b))[by, bx].mean()), float(t.mean())
+        mine, theirs, truth = float(x[by, bx].mean()), float(pair[0][by, bx].mean()), float(t.mean())
         nearer = abs(mine - truth) < abs(theirs - truth)
         pdic_nearer += nearer
         print(f"  {by:4d} {bx:4d} {int(counts[by, bx]):3d}  {mine:8.4f} {theirs:8.4f} {truth:8.4f} +- {s:.4f}  "

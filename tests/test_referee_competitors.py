@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from pdic.bench import path_referee, referee_competitors
+from pdic.bench.competitors import block_means
 from pdic.core.lights import PointLight
 from scenes import quad, quad_scene
 
@@ -18,10 +19,11 @@ def test_worst_blocks_and_the_refereed_block_error_by_hand():
     pdic[8:, :8] = 2.0
     pdic[:8, 8:] = 1.1
     mask = np.ones((16, 16), bool)
-    chosen = referee_competitors.worst_blocks(pdic, pair, mask, 1)
+    blocks = referee_competitors.pair_blocks(pair, mask)
+    test = block_means(pdic, mask)[0]
+    chosen = referee_competitors.worst_blocks(test, blocks, 1)
     assert chosen.tolist() == [[1, 0]]
-    before, after = referee_competitors.refereed_block_error(pdic, pair, mask, chosen, np.full((1, 3), 2.0),
-                                                             np.zeros(1))
+    before, after = referee_competitors.refereed_block_error(test, blocks, chosen, np.full((1, 3), 2.0), np.zeros(1))
     assert before == pytest.approx(np.sqrt(1.01 / 4), rel=1e-6)
     assert after == pytest.approx(np.sqrt(0.01 / 4) / 1.25, rel=1e-5)
 
