@@ -16,13 +16,22 @@ face and its own copy turned over (a sheet made two-sided by a flipped duplicate
 Only triangles whose plane another triangle shares facing the other way are asked: one short ray
 per sample on them, against a BVH of the triangles facing the other way, so a sample's own
 triangle is never in the way, and one ray into the back of those that touch.
+
+A sample *under a sheet* (deviation: under-sheets) is one a face nearly parallel to its own lies over,
+nearer than the rays' offset: a decal 80 um over its wall, a slab's face a hair above another. Its rays
+start past the sheet, in the open; Cycles' meet the sheet (its back, or its front) at once. Such a sheet
+need not touch the face nor bound a solid, and its normal may be a degree or two off, which no plane hash
+finds: every sample is asked, with one ray down its normal through the offset.
 """
 from __future__ import annotations
 
 import copy
+import threading
+import weakref
 
 import numpy as np
 
+from .constants import COVERED_COS
 from .rays import RayCaster
 
 CONTACT_EPSILONS = 2.0
@@ -33,6 +42,12 @@ NORMAL_STEP = 1e-3
 """Unit normals are grouped into planes on this grid (faces a few hundredths of a degree apart share one)."""
 _CANONICAL = np.array([0.5773502691896258, 0.5772, 0.5775])
 """A direction no modelled normal is perpendicular to: the sign of n . it tells a face from its reverse."""
+SHEET_NEAREST = 0.05
+"""A face nearer than this many ray offsets over a sample lies in its plane (its own triangle, a coplanar
+neighbour, a copy in place, each within float32 rounding, about 1e-7 of the scene): not a sheet over it."""
+SHEET_FARTHEST = 2.0
+"""Sheets are looked for up to this many offsets over a sample; past one its own rays meet them (texel
+validity's back-face vote, or covered)."""
 
 
 class ContactFaces:
@@ -40,16 +55,21 @@ class ContactFaces:
 
     positions : (T, 3, 3) scene-local corners (``Geometry.positions``); caster : the bake's
     :class:`RayCaster` over them (its extent, epsilon and face normals).
+    touch : test for faces that touch face to face (deviation: contact-faces).
+    sheets : test for sheets over the samples (deviation: under-sheets).
     """
 
-    def __init__(self, positions: np.ndarray, caster: RayCaster):
+    def __init__(self, positions: np.ndarray, caster: RayCaster, touch: bool = True, sheets: bool = True):
         self.caster = caster
         self.face_normals = caster.face_normals
         self.solid_rays = 0
-        """The skin tests' rays (the touch tests' are counted by their BVHs)."""
+        """The skin and sheet tests' rays (the touch tests' are counted by their BVHs)."""
         self.epsilon = caster.epsilon
+        self.sheets = sheets
+        self._sheet_verdicts = {}  # id(p) -> (weakref to p, triangle, verdicts): shared with the views
+        self._sheet_lock = threading.RLock()  # re-entered when a weakref's callback runs inside the test
         sign, candidate = touching_planes(positions, self.face_normals, CONTACT_EPSILONS * caster.epsilon)
-        self.sign = np.where(candidate, sign, 0).astype(np.int8)
+        self.sign = np.where(candidate & touch, sign, 0).astype(np.int8)
         """(T,) +1 / -1: the triangle may touch a face of the other sign; 0: it touches none."""
         self._casters = {}
         for s in (1, -1):
@@ -81,9 +101,47 @@ class ContactFaces:
         return self.solid_rays + sum(caster.rays_cast for _, caster in self._casters.values())
 
     def samples(self, p: np.ndarray, triangle: np.ndarray) -> np.ndarray:
+        """(m,) bool: which samples at p (m, 3) on ``triangle`` (m,) no light reaches: :meth:`touching`
+        or :meth:`under_sheet`."""
+        return self.touching(p, triangle) | self.under_sheet(p, triangle)
+
+    def touching(self, p: np.ndarray, triangle: np.ndarray) -> np.ndarray:
         """(m,) bool: which samples at p (m, 3) on ``triangle`` (m,) touch another face, face to face, on
-        a face that is the skin of a solid."""
+        a face that is the skin of a solid (deviation: contact-faces)."""
         return self._skin(p, triangle, self._touch(p, triangle))
+
+    def under_sheet(self, p: np.ndarray, triangle: np.ndarray) -> np.ndarray:
+        """(m,) bool: which samples at p (m, 3) on ``triangle`` (m,) a face nearly parallel to theirs
+        (COVERED_COS, facing either way) lies over, between SHEET_NEAREST and SHEET_FARTHEST ray offsets
+        (deviation: under-sheets). The ray runs down the sample's normal from the far end, so the
+        sample's own face and the faces in its plane lie past its reach; a face across the ray at a
+        steeper angle is a crease or an intersection beside the sample, which its own rays judge."""
+        under = np.zeros(len(p), bool)
+        if not self.sheets or len(p) == 0:
+            return under
+        # A target's samples are asked twice, for direct light and for validity, often at once on two
+        # threads: the second waits for the first's verdicts (the same rays, counted once).
+        with self._sheet_lock:
+            known = self._sheet_verdicts.get(id(p))
+            if known is not None and known[0]() is p and known[1] is triangle:
+                return known[2].copy()
+            under = self._under_sheet(p, triangle)
+            key = id(p)
+            forget = lambda _, verdicts=self._sheet_verdicts, lock=self._sheet_lock: _pop(verdicts, lock, key)  # noqa: E731
+            self._sheet_verdicts[key] = (weakref.ref(p, forget), triangle, under.copy())
+        return under
+
+    def _under_sheet(self, p: np.ndarray, triangle: np.ndarray) -> np.ndarray:
+        """:meth:`under_sheet`'s rays."""
+        under = np.zeros(len(p), bool)
+        n = np.take(self.face_normals, triangle, axis=0)
+        top = SHEET_FARTHEST * self.epsilon
+        hits = self.caster.serial().intersect(p + top * n, -n, t_max=top - SHEET_NEAREST * self.epsilon, unit=True)
+        self.solid_rays += len(p)
+        hit = np.flatnonzero(hits.hit)
+        facing = np.einsum("ij,ij->i", np.take(self.face_normals, hits.triangle[hit], axis=0), n[hit])
+        under[hit[np.abs(facing) >= COVERED_COS]] = True
+        return under
 
     def _touch(self, p: np.ndarray, triangle: np.ndarray) -> np.ndarray:
         """(m,) bool: which points p (m, 3) on ``triangle`` (m,) another face touches, face to face."""
@@ -124,6 +182,12 @@ class ContactFaces:
         touching = touching.copy()
         touching[ask[~inside]] = False
         return touching
+
+
+def _pop(verdicts: dict, lock: threading.Lock, key: int) -> None:
+    """Forget the sheet verdicts of samples that no longer exist (their id may come back for others)."""
+    with lock:
+        verdicts.pop(key, None)
 
 
 def touching_planes(positions: np.ndarray, normals: np.ndarray, tolerance: float) -> tuple[np.ndarray, np.ndarray]:

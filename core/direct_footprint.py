@@ -108,8 +108,8 @@ def footprint_direct(scene, caster, target_index: int, points: TexelPoints, rast
         ``direct_footprint_side``).
     stream : the target's random stream id; jitter and shadow rays draw from
         ``[seed, STREAM_DIRECT_FOOTPRINT, stream, ...]``.
-    contact : :class:`core.contact.ContactFaces` (deviation: contact-faces): footprint points on a face
-        another touches get no light, as ``direct``'s samples there have none; or None.
+    contact : :class:`core.contact.ContactFaces` (deviations: contact-faces, under-sheets): footprint points
+        on a face another touches or under a sheet get no light, as ``direct``'s samples there have none; or None.
 
     Returns
     -------

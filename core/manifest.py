@@ -66,8 +66,9 @@ Schema (``schema_version`` 1)
     folded into their texel's centre triangle, deviation edge-folding).
     Texel validity: ``texel_samples_inside_geometry`` (int, samples given no indirect light),
     of them ``texel_samples_covered`` (int, samples under a sheet nearer than a tenth of a texel,
-    or on a face another touches face to face: ``texel_samples_in_contact``, int, deviation
-    contact-faces, whose tests cast ``contact_rays``, int; such samples get no direct light either),
+    on a face another touches face to face: ``texel_samples_in_contact``, int, deviation
+    contact-faces, or under a face nearer than the rays' offset: ``texel_samples_under_sheet``, int,
+    deviation under-sheets; their tests cast ``contact_rays``, int; such samples get no direct light either),
     and ``texel_samples_photon_evidence`` (int, back-face votes a photon overruled),
     ``validity_rays`` (int); a bake without indirect light votes only on unlit samples near lit
     texels, to bury texels for the light map. Pass 2: ``photons_uncovered_after_clamp`` (int, photons

@@ -182,11 +182,14 @@ class _Run:
         return self._caster
 
     def contact(self) -> ContactFaces | None:
-        """The faces that touch others face to face (deviation: contact-faces), or None when switched off."""
-        if not self.settings.deviations.contact_faces:
+        """The tests for texel samples no light reaches, faces that touch others face to face (deviation:
+        contact-faces) and sheets over them (deviation: under-sheets), or None when both are switched off."""
+        deviations = self.settings.deviations
+        if not (deviations.contact_faces or deviations.under_sheets):
             return None
         if self._contact is None:
-            self._contact = ContactFaces(self.scene.geometry.positions, self.caster())
+            self._contact = ContactFaces(self.scene.geometry.positions, self.caster(), deviations.contact_faces,
+                                         deviations.under_sheets)
         return self._contact
 
 
@@ -381,7 +384,7 @@ def shade_direct_at_targets(run: "_Run", targets: list[TargetTexels], beside: bo
                                             settings.direct_samples, settings.seed, (STREAM_DIRECT, t.stream),
                                             side.executor, side.progress, whole=True)
             contact = side.contact()
-            if contact is not None:  # deviation: contact-faces, docs/DEVIATIONS.md
+            if contact is not None:  # deviations: contact-faces, under-sheets, docs/DEVIATIONS.md
                 direct = replace(direct, E=np.where(contact.samples(p.p, p.triangle)[:, None], 0.0, direct.E))
             E = direct.E
             if settings.deviations.direct_footprint:  # deviation: direct-footprint, docs/DEVIATIONS.md
@@ -423,7 +426,7 @@ def _direct_key(run: "_Run", t: TargetTexels) -> str:
     settings = run.settings
     return run.store.key("direct", run.transport(), t.key, settings.direct_samples, settings.seed,
                          settings.deviations.direct_footprint, settings.direct_footprint_side, run.sky is not None,
-                         settings.deviations.contact_faces)
+                         settings.deviations.contact_faces, settings.deviations.under_sheets)
 
 
 def validity_without_indirect(run: "_Run", targets: list[TargetTexels]) -> None:

@@ -111,6 +111,9 @@ class Deviations:
     """Texel samples on a face another face touches face to face (a building's bottom on a ground plane, a
     cabinet's back flush against a one-face wall) get no light, as in Cycles: their rays would start past
     the touching face (core/contact.py). Off: they are lit from beyond it."""
+    under_sheets: bool = True
+    """Texel samples under a face lying over theirs nearer than the rays' offset (a decal 80 um over its wall)
+    get no light, as in Cycles (core/contact.py ``under_sheet``). Off: they are lit from beyond the sheet."""
     crease_folding: bool = True
     """A texel sample across a crease (a geometric normal turning more than CREASE_FOLD_ANGLE) from the
     triangle under its texel's centre moves onto that triangle, where Cycles bakes the whole texel

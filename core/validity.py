@@ -147,8 +147,8 @@ def sample_validity(scene, caster: RayCaster, density, target_index: int, points
     The back-face vote (:func:`texel_validity`), less photon evidence, or covered (:func:`verdict`);
     density None (no photons) leaves the evidence out. voted : (n,) bool the samples to vote on (the
     rest count as outside: a bake without indirect light), or None for all. contact : the scene's
-    :class:`core.contact.ContactFaces` (deviation: contact-faces): samples on a face another touches
-    face to face are covered; or None. centre_triangle : the target's
+    :class:`core.contact.ContactFaces` (deviations: contact-faces, under-sheets): samples on a face another
+    touches face to face or under a sheet are covered; or None. centre_triangle : the target's
     :attr:`core.texels.TargetRaster.centre_triangle` (:func:`indirect_weights`), or None.
     """
     progress.begin("Texel validity")
@@ -163,15 +163,17 @@ def sample_validity(scene, caster: RayCaster, density, target_index: int, points
                 inside, covered = vote, cast
             else:
                 inside[voted], covered[voted] = vote, cast
-        touching = np.zeros(len(points), bool) if contact is None else contact.samples(points.p, points.triangle)
-        covered |= touching
+        none = np.zeros(len(points), bool)
+        touching = none if contact is None else contact.touching(points.p, points.triangle)
+        sheet = none if contact is None else contact.under_sheet(points.p, points.triangle)
+        covered |= touching | sheet
         inside, overruled = verdict(inside, covered, caster, density, points.p, points.n_geometric, R_min, settings)
         weights, footprint_rays = indirect_weights(scene, caster, density, target_index, points, inside, settings,
                                                    R_min, stream, cover, executor, progress, contact,
                                                    centre_triangle)
     stats.add(texel_samples_inside_geometry=int(inside.sum()), validity_rays=rays + footprint_rays,
               texel_samples_photon_evidence=overruled, texel_samples_covered=int(covered.sum()),
-              texel_samples_in_contact=int(touching.sum()))
+              texel_samples_in_contact=int(touching.sum()), texel_samples_under_sheet=int(sheet.sum()))
     return inside, weights
 
 
@@ -274,7 +276,7 @@ def indirect_weights(scene, caster, density, target_index: int, points, inside: 
         fp_inside, fp_covered, rays = texel_validity(caster, fp, [settings.seed, STREAM_VALIDITY_FOOTPRINT, stream, 1],
                                                      executor if executor is not None else Executor(1), progress,
                                                      cover, open_backs(caster, density, settings.deviations))
-        if contact is not None:  # deviation: contact-faces, docs/DEVIATIONS.md
+        if contact is not None:  # deviations: contact-faces, under-sheets, docs/DEVIATIONS.md
             fp_covered |= contact.samples(fp.p, fp.triangle)
         fp_inside, _ = verdict(fp_inside, fp_covered, caster, density, fp.p, fp.n_geometric, R_min, settings)
         fw = fp.weight.astype(np.float64)
