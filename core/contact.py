@@ -112,8 +112,8 @@ class ContactFaces:
 
     def under_sheet(self, p: np.ndarray, triangle: np.ndarray) -> np.ndarray:
         """(m,) bool: which samples at p (m, 3) on ``triangle`` (m,) a face nearly parallel to theirs
-        (COVERED_COS, facing either way) lies over, between SHEET_NEAREST and SHEET_FARTHEST ray offsets
-        (deviation: under-sheets). The ray runs down the sample's normal from the far end, so the
+        (COVERED_COS, facing either way) and opaque lies over, between SHEET_NEAREST and SHEET_FARTHEST
+        ray offsets (deviation: under-sheets). The ray runs down the sample's normal from the far end, so the
         sample's own face and the faces in its plane lie past its reach; a face across the ray at a
         steeper angle is a crease or an intersection beside the sample, which its own rays judge."""
         under = np.zeros(len(p), bool)
@@ -127,7 +127,7 @@ class ContactFaces:
                 return known[2].copy()
             under = self._under_sheet(p, triangle)
             key = id(p)
-            forget = lambda _, verdicts=self._sheet_verdicts, lock=self._sheet_lock: _pop(verdicts, lock, key)  # noqa: E731
+            forget = lambda _, key=key, verdicts=self._sheet_verdicts, lock=self._sheet_lock: _pop(verdicts, lock, key)  # noqa: E731
             self._sheet_verdicts[key] = (weakref.ref(p, forget), triangle, under.copy())
         return under
 
@@ -139,8 +139,10 @@ class ContactFaces:
         hits = self.caster.serial().intersect(p + top * n, -n, t_max=top - SHEET_NEAREST * self.epsilon, unit=True)
         self.solid_rays += len(p)
         hit = np.flatnonzero(hits.hit)
-        facing = np.einsum("ij,ij->i", np.take(self.face_normals, hits.triangle[hit], axis=0), n[hit])
-        under[hit[np.abs(facing) >= COVERED_COS]] = True
+        sheet = hits.triangle[hit]
+        facing = np.einsum("ij,ij->i", np.take(self.face_normals, sheet, axis=0), n[hit])
+        opaque = True if self.caster.transmission is None else self.caster.transmission[sheet] == 0
+        under[hit[(np.abs(facing) >= COVERED_COS) & opaque]] = True  # light passes a sheet that lets it through
         return under
 
     def _touch(self, p: np.ndarray, triangle: np.ndarray) -> np.ndarray:
@@ -184,7 +186,7 @@ class ContactFaces:
         return touching
 
 
-def _pop(verdicts: dict, lock: threading.Lock, key: int) -> None:
+def _pop(verdicts: dict, lock: threading.RLock, key: int) -> None:
     """Forget the sheet verdicts of samples that no longer exist (their id may come back for others)."""
     with lock:
         verdicts.pop(key, None)

@@ -94,7 +94,8 @@ def _ground_and(sheet):
 def test_a_sheet_nearer_than_the_rays_offset_covers_what_lies_under_it_whichever_way_it_faces():
     """Half an offset over the ground a 1 m sheet facing up (a decal) or down covers the ground under it,
     not beside it. A copy in place (the same plane), a sheet three offsets up (the samples' own rays meet it)
-    or one tilted 30 degrees across the ground's plane (an intersection beside the sample) does not."""
+    or one tilted 30 degrees across the ground's plane (an intersection beside the sample) does not, nor
+    one that lets light through."""
     _, caster = _ground_and(quad(np.zeros(3), X, Y))
     eps = caster.epsilon
     under, beside = [0.5, 0.5, 0.0], [1.5, 1.5, 0.0]
@@ -114,6 +115,8 @@ def test_a_sheet_nearer_than_the_rays_offset_covers_what_lies_under_it_whichever
     assert covered(tilted) == [False, False]
     positions, caster = _ground_and(quad(0.5 * eps * Z, X, Y))
     assert ContactFaces(positions, caster, sheets=False).under_sheet(p, ground).tolist() == [False, False]
+    glass = RayCaster(positions, transmission=np.array([0.0, 0.0, 1.0, 1.0]))  # light passes it (Cycles' shadows)
+    assert ContactFaces(positions, glass).under_sheet(p, ground).tolist() == [False, False]
 
 
 def test_the_ground_under_a_decal_bakes_black_as_in_cycles_and_the_decal_is_lit():
