@@ -322,6 +322,41 @@ PDIC_EXPORT int64_t pdic_point_light_rays(const double *p, const double *n_s, co
 
 static inline double clip01(double v) { return v < 0.0 ? 0.0 : (v > 1.0 ? 1.0 : v); }
 
+#if defined(__GNUC__) || defined(__clang__)
+#define PDIC_PREFETCH(address) __builtin_prefetch(address)
+#else
+#define PDIC_PREFETCH(address) ((void)(address))
+#endif
+
+/* Hits whose cells pdic_hit_cells finds before it reads any, and how far ahead it asks for a cell's
+ * memory: the grid's tables (Sponza 16/m: 2.3 M cells, 190 MB) are read at random, and a hit waited
+ * for each of its four cache misses in turn (155-175 ns a hit; 73-82 ns asking 32 hits ahead). */
+#define PDIC_HIT_BLOCK 1024
+#define PDIC_HIT_AHEAD 32
+
+/* core.hit_radiance.HitGrid.lookup's cell of a hit on triangle t at Embree barycentric b, and the side
+ * met by a ray along d (real_rays.side_met: back = the side the face normal f points away from). */
+static inline int64_t grid_cell(const double *b, const double *f, const double *d, int64_t L, int64_t first,
+                                uint8_t *back) {
+    *back = (uint8_t)((f[0] * d[0] + f[1] * d[1] + f[2] * d[2]) > 0.0);
+    double x = clip01(b[0]) * (double)L, y = clip01(b[1]) * (double)L;
+    double fi = floor(x), fj = floor(y), top = (double)(L - 1);
+    fi = fi < 0.0 ? 0.0 : (fi > top ? top : fi);
+    fj = fj < 0.0 ? 0.0 : (fj > top ? top : fj);
+    int64_t i = (int64_t)fi, j = (int64_t)fj;
+    if (i > L - 1 - j) i = L - 1 - j;
+    int64_t upper = ((x - (double)i) + (y - (double)j) > 1.0) && (i < L - 1 - j);
+    return first + j * (2 * L - j) + 2 * i + upper;
+}
+
+static inline void prefetch_cell(int64_t cell, int64_t at, const float *E, const double *centroid,
+                                 const float *albedo, const uint8_t *open) {
+    PDIC_PREFETCH(E + 3 * at);
+    PDIC_PREFETCH(centroid + 3 * cell);
+    if (albedo) PDIC_PREFETCH(albedo + 3 * cell);
+    if (open) PDIC_PREFETCH(open + at);
+}
+
 /* core.real_rays.hit_cells: for gathering hits on triangles (h,) at Embree barycentrics (h, 2), met by
  * rays `direction` (h, 3) at q (h, 3), `distance` (h,) from their record: the side met (real_rays.side_met:
  * back, n_hit), the hit grid's cell there (core.hit_radiance.HitGrid.lookup: E (2, V, 3) float32 per side,
@@ -338,43 +373,49 @@ PDIC_EXPORT void pdic_hit_cells(const int64_t *triangle, const double *barycentr
                                 double corner_reach, double corner_height, double *E_out,
                                 double *centroid_out, double *rho_out, double *n_out, uint8_t *open_out,
                                 uint8_t *near_out, uint8_t *gap_out) {
-    for (int64_t k = 0; k < h; ++k) {
-        int64_t t = triangle[k];
-        const double *f = face_normals + 3 * t, *d = direction + 3 * k;
-        int64_t back = (f[0] * d[0] + f[1] * d[1] + f[2] * d[2]) > 0.0;
-        double nh[3];
-        for (int c = 0; c < 3; ++c) nh[c] = back ? -f[c] : f[c];
-        int64_t L = side[t];
-        double x = clip01(barycentric[2 * k]) * (double)L, y = clip01(barycentric[2 * k + 1]) * (double)L;
-        double fi = floor(x), fj = floor(y), top = (double)(L - 1);
-        fi = fi < 0.0 ? 0.0 : (fi > top ? top : fi);
-        fj = fj < 0.0 ? 0.0 : (fj > top ? top : fj);
-        int64_t i = (int64_t)fi, j = (int64_t)fj;
-        if (i > L - 1 - j) i = L - 1 - j;
-        int64_t upper = ((x - (double)i) + (y - (double)j) > 1.0) && (i < L - 1 - j);
-        int64_t cell = offset[t] + j * (2 * L - j) + 2 * i + upper, at = back * V + cell;
-        const double *cen = centroid + 3 * cell;
-        double o[3];
-        for (int c = 0; c < 3; ++c) {
-            E_out[3 * k + c] = (double)E[3 * at + c];
-            centroid_out[3 * k + c] = cen[c];
-            n_out[3 * k + c] = nh[c];
-            if (albedo) rho_out[3 * k + c] = (double)albedo[3 * cell + c];
-            o[c] = q[3 * k + c] - cen[c];
+    int64_t cells[PDIC_HIT_BLOCK];
+    uint8_t backs[PDIC_HIT_BLOCK];
+    for (int64_t begin = 0; begin < h; begin += PDIC_HIT_BLOCK) {
+        int64_t n = h - begin < PDIC_HIT_BLOCK ? h - begin : PDIC_HIT_BLOCK;
+        for (int64_t b = 0; b < n; ++b) {
+            int64_t k = begin + b, t = triangle[k];
+            cells[b] = grid_cell(barycentric + 2 * k, face_normals + 3 * t, direction + 3 * k, side[t], offset[t],
+                                 backs + b);
+            if (b < PDIC_HIT_AHEAD) prefetch_cell(cells[b], backs[b] * V + cells[b], E, centroid, albedo, open);
         }
-        double reach = near_factor * distance[k];
-        int near = (o[0] * o[0] + o[1] * o[1] + o[2] * o[2]) > reach * reach;
-        int gap = 0;
-        if (n_record) {
-            const double *r = n_record + 3 * k;
-            gap = (near || distance[k] < gap_reach) && ((nh[0] * r[0] + nh[1] * r[1] + nh[2] * r[2]) < -gap_cos);
-            if (corner_reach > 0.0) {
-                double height = distance[k] * (d[0] * r[0] + d[1] * r[1] + d[2] * r[2]);
-                gap = gap || ((distance[k] < corner_reach) && (height < corner_height));
+        for (int64_t b = 0; b < n; ++b) {
+            if (b + PDIC_HIT_AHEAD < n) {
+                int64_t later = b + PDIC_HIT_AHEAD;
+                prefetch_cell(cells[later], backs[later] * V + cells[later], E, centroid, albedo, open);
             }
+            int64_t k = begin + b, t = triangle[k];
+            const double *f = face_normals + 3 * t, *d = direction + 3 * k;
+            int64_t back = backs[b], cell = cells[b], at = back * V + cell;
+            double nh[3];
+            for (int c = 0; c < 3; ++c) nh[c] = back ? -f[c] : f[c];
+            const double *cen = centroid + 3 * cell;
+            double o[3];
+            for (int c = 0; c < 3; ++c) {
+                E_out[3 * k + c] = (double)E[3 * at + c];
+                centroid_out[3 * k + c] = cen[c];
+                n_out[3 * k + c] = nh[c];
+                if (albedo) rho_out[3 * k + c] = (double)albedo[3 * cell + c];
+                o[c] = q[3 * k + c] - cen[c];
+            }
+            double reach = near_factor * distance[k];
+            int near = (o[0] * o[0] + o[1] * o[1] + o[2] * o[2]) > reach * reach;
+            int gap = 0;
+            if (n_record) {
+                const double *r = n_record + 3 * k;
+                gap = (near || distance[k] < gap_reach) && ((nh[0] * r[0] + nh[1] * r[1] + nh[2] * r[2]) < -gap_cos);
+                if (corner_reach > 0.0) {
+                    double height = distance[k] * (d[0] * r[0] + d[1] * r[1] + d[2] * r[2]);
+                    gap = gap || ((distance[k] < corner_reach) && (height < corner_height));
+                }
+            }
+            open_out[k] = open ? open[at] : 0;
+            near_out[k] = (uint8_t)near;
+            gap_out[k] = (uint8_t)gap;
         }
-        open_out[k] = open ? open[at] : 0;
-        near_out[k] = (uint8_t)near;
-        gap_out[k] = (uint8_t)gap;
     }
 }
