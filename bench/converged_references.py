@@ -17,8 +17,12 @@ subtracts it (bench/run.py ``noise_corrected_error``). Written to bench/referenc
   Their maps are sized from the surface area, as the add-on did up to session 16: the charts
   fitted into that side hold fewer texels per metre than ``density`` (the building's walls 0.94).
 - ``occluded_held_one_d4_...``, ``sponza_held_one_d4_...``: the building and Sponza as the add-on
-  bakes them now at 4 texels/m, their maps grown until the charts hold that density (272^2 instead
-  of 164^2, 796^2 instead of 696^2).
+  bakes them now at 4 texels/m, their maps grown until the charts hold that density (260^2 instead
+  of 164^2, 732^2 instead of 696^2).
+
+The references hold the UVs of the unwrap that baked them: a change to the unwrap (core/unwrap.py,
+core/xatlas_charts.py) needs them baked again (session 52 did, after 4b285dc's packing change had left all
+four one-object pairs on charts the scenes no longer have).
 """
 from __future__ import annotations
 
