@@ -120,11 +120,18 @@ def join(objects: list) -> list:
     return [o for o in bpy.context.scene.objects if o.type == "MESH"]
 
 
-def one_object(name: str, spp: int, density: float, scenes_only: bool = False, tag: str = "") -> None:
+def one_object_scene(name: str, density: float, cache_dir: Path) -> tuple[list, object]:
+    """Sponza or the occluded building (``name``) joined into one object and unwrapped as the references
+    were: (the Blender objects, the core scene the add-on extracts, its UVs those of the reference)."""
     objects = bench_scenes.load_sponza() if name.startswith("sponza") else bench_scenes.load_occluded()
     objects = join(objects)
     settings = preset("FINAL", texel_density=density, min_resolution=32)
-    _, scene = bench_scenes.prepare(objects, settings, SCENES / "cache" / name, area_sized=not name.endswith("_held"))
+    _, scene = bench_scenes.prepare(objects, settings, cache_dir, area_sized=not name.endswith("_held"))
+    return objects, scene
+
+
+def one_object(name: str, spp: int, density: float, scenes_only: bool = False, tag: str = "") -> None:
+    objects, scene = one_object_scene(name, density, SCENES / "cache" / name)
     SCENES.mkdir(parents=True, exist_ok=True)
     (SCENES / f"{name}{tag}.pkl").write_bytes(pickle.dumps(scene))
     from pdic.pdic_addon.uvmaps import LIGHTMAP_UV
