@@ -89,7 +89,7 @@ def refereed_block_error(test: np.ndarray, pair: tuple, chosen: np.ndarray, trac
     """(the noise-corrected relative RMSE of ``test``'s block means (H/8, W/8, 3) against the pair's
     (:func:`pair_blocks`), the same with the traced means (their variance subtracted) in place of the pair's
     at the ``chosen`` blocks)."""
-    ref, noise, blocks = (v.copy() for v in pair)
+    ref, noise, blocks = pair[0].copy(), pair[1].copy(), pair[2]  # the chosen blocks' entries are replaced
     sq = (test - ref) ** 2
     before = np.sqrt(max(sq[blocks].mean() - noise[blocks].mean(), 0.0)) / ref[blocks].mean()
     by, bx = chosen[:, 0], chosen[:, 1]
@@ -108,9 +108,9 @@ so it is no independent judge there. The "independent" variant leaves such block
 
 def refereed_ladder(obj, spec, kind: str, mask, normal, pair, variants: dict, bench_rows: list, pdic_row: dict
                     ) -> None:
-    """Bake and denoise the ladder again and print (``pair``: :func:`pair_blocks`), per variant (label -> (chosen blocks, traced means, their
+    """Bake and denoise the ladder again and print, per variant (label -> (chosen blocks, traced means, their
     standard errors, PDIC's refereed error)), each rung's refereed block error and Cycles + OIDN's CPU
-    seconds at PDIC's refereed error (the bench's CPU seconds per rung)."""
+    seconds at PDIC's refereed error (the bench's CPU seconds per rung). pair : :func:`pair_blocks`."""
     from pdic.bench import competitors as comp
 
     comp.set_cycles_threads(2)

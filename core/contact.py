@@ -26,6 +26,7 @@ finds: every sample is asked, with one ray down its normal through the offset.
 from __future__ import annotations
 
 import copy
+import functools
 import threading
 import weakref
 
@@ -126,9 +127,8 @@ class ContactFaces:
             if known is not None and known[0]() is p and known[1] is triangle:
                 return known[2].copy()
             under = self._under_sheet(p, triangle)
-            key = id(p)
-            forget = lambda _, key=key, verdicts=self._sheet_verdicts, lock=self._sheet_lock: _pop(verdicts, lock, key)  # noqa: E731
-            self._sheet_verdicts[key] = (weakref.ref(p, forget), triangle, under.copy())
+            forget = functools.partial(_forget, self._sheet_verdicts, self._sheet_lock, id(p))
+            self._sheet_verdicts[id(p)] = (weakref.ref(p, forget), triangle, under.copy())
         return under
 
     def _under_sheet(self, p: np.ndarray, triangle: np.ndarray) -> np.ndarray:
@@ -186,7 +186,7 @@ class ContactFaces:
         return touching
 
 
-def _pop(verdicts: dict, lock: threading.RLock, key: int) -> None:
+def _forget(verdicts: dict, lock: threading.RLock, key: int, _gone: weakref.ref) -> None:
     """Forget the sheet verdicts of samples that no longer exist (their id may come back for others)."""
     with lock:
         verdicts.pop(key, None)

@@ -17,6 +17,8 @@ from scenes import box_on_ground, quad, quad_scene
 
 FINAL = preset("FINAL", threads=2)
 X, Y, Z = (np.eye(3)[i] for i in range(3))
+GROUND = quad(np.array([-2.0, -2.0, 0.0]), 4 * X, 4 * Y)
+"""A 4 x 4 m ground facing up (two triangles)."""
 
 
 def test_a_box_bottom_on_the_ground_gets_no_light_and_a_two_sided_sheet_keeps_both_sides():
@@ -49,12 +51,11 @@ def test_only_faces_sharing_a_plane_facing_the_other_way_are_asked():
     so does the ground's reversed copy; a face of the same facing in the same plane is a duplicate. Of the
     samples that touch, only those on a solid's skin count: the box's bottom, not the ground, nor a lone
     face (an open sheet)."""
-    ground = quad(np.array([-2.0, -2.0, 0.0]), 4 * X, 4 * Y)
-    caster = RayCaster(np.concatenate([ground, quad(np.zeros(3), Y, X)]))
+    caster = RayCaster(np.concatenate([GROUND, quad(np.zeros(3), Y, X)]))
     eps = caster.epsilon
 
     def asked(face):
-        positions = np.concatenate([ground, face])
+        positions = np.concatenate([GROUND, face])
         _, candidate = touching_planes(positions, RayCaster(positions, caster.extent).face_normals, 2 * eps)
         return candidate
 
@@ -66,19 +67,19 @@ def test_only_faces_sharing_a_plane_facing_the_other_way_are_asked():
     # Samples: on the bottom of a closed box, on the ground under and beside it; on a lone face's bottom.
     box = [quad(np.zeros(3), Y, X), quad(Z, X, Y), quad(np.zeros(3), X, Z), quad(Y, Z, X), quad(np.zeros(3), Z, Y),
            quad(X, Y, Z)]
-    positions = np.concatenate([ground, *box])
+    positions = np.concatenate([GROUND, *box])
     faces = ContactFaces(positions, RayCaster(positions))
     p = np.array([[0.5, 0.5, 0.0], [0.5, 0.5, 0.0], [1.5, 1.5, 0.0]])
     assert faces.samples(p, np.array([2, 0, 0])).tolist() == [True, False, False]
     # the touch test for the three, the skin test for the two that touch, the sheet test for the three
     assert faces.rays_cast == 3 + 2 + 3
-    lone = np.concatenate([ground, quad(np.zeros(3), Y, X)])
+    lone = np.concatenate([GROUND, quad(np.zeros(3), Y, X)])
     assert not ContactFaces(lone, RayCaster(lone)).samples(p[:1], np.array([2])).any()
     # A slab on the box: the box's top touches the slab's bottom, and the skin test's ray from the top
     # down through the box meets the box's bottom and the ground together, a back and a front face.
     slab = [quad(Z, Y, X), quad(1.2 * Z, X, Y), quad(Z, X, 0.2 * Z), quad(Y + Z, 0.2 * Z, X), quad(Z, 0.2 * Z, Y),
             quad(X + Z, Y, 0.2 * Z)]
-    stacked = np.concatenate([ground, *box, *slab])
+    stacked = np.concatenate([GROUND, *box, *slab])
     faces = ContactFaces(stacked, RayCaster(stacked))
     top, slab_bottom = 2 + 2 * 1, 2 + 2 * 6  # the box's top face, the slab's bottom face (first triangles)
     on_top = np.array([[0.3, 0.6, 1.0], [0.3, 0.6, 1.0], [0.5, 0.5, 0.0]])
@@ -87,7 +88,7 @@ def test_only_faces_sharing_a_plane_facing_the_other_way_are_asked():
 
 def _ground_and(sheet):
     """A 4 x 4 m ground (facing up, triangles 0-1) and one more quad (triangles 2-3), with their RayCaster."""
-    positions = np.concatenate([quad(np.array([-2.0, -2.0, 0.0]), 4 * X, 4 * Y), sheet])
+    positions = np.concatenate([GROUND, sheet])
     return positions, RayCaster(positions)
 
 
@@ -101,9 +102,9 @@ def test_a_sheet_nearer_than_the_rays_offset_covers_what_lies_under_it_whichever
     under, beside = [0.5, 0.5, 0.0], [1.5, 1.5, 0.0]
     p, ground = np.array([under, beside]), np.array([0, 1])
 
-    def covered(sheet, touch=False):
+    def covered(sheet):
         positions, caster = _ground_and(sheet)
-        return ContactFaces(positions, caster, touch=touch).under_sheet(p, ground).tolist()
+        return ContactFaces(positions, caster, touch=False).under_sheet(p, ground).tolist()
 
     assert covered(quad(0.5 * eps * Z, X, Y)) == [True, False]
     assert covered(quad(0.5 * eps * Z, Y, X)) == [True, False]  # facing down
@@ -124,7 +125,7 @@ def test_the_ground_under_a_decal_bakes_black_as_in_cycles_and_the_decal_is_lit(
     no direct or indirect light (Cycles' rays meet the decal's back), the decal and the open ground are lit.
     Off, the ground under it is lit as the open ground through the offset."""
     eps = _ground_and(quad(np.zeros(3), X, Y))[1].epsilon
-    scene = replace(quad_scene([quad(np.array([-2.0, -2.0, 0.0]), 4 * X, 4 * Y), quad(0.5 * eps * Z, X, Y)],
+    scene = replace(quad_scene([GROUND, quad(0.5 * eps * Z, X, Y)],
                                {"ground": (0, 16), "decal": (1, 8)}, []), world=World(np.full(3, 1.0)))
     on = bake(scene, FINAL)
     off = bake(scene, replace(FINAL, deviations=Deviations(under_sheets=False)))
