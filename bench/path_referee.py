@@ -145,12 +145,11 @@ def cycles_footprint(scene, target_index: int, texels: np.ndarray, per_axis: int
     stratified jittered points over the footprints of ``texels`` (flat indices of target ``target_index``)
     as Cycles' bake integrates them.
 
-    Blender 5.0 and 5.1 jitter over the centred half-texel square and fold every point into the triangle
-    under the texel's centre (:attr:`core.raster.TexelSamples.centre_triangle`), mirrored as
-    ``bake_clamp_mirror_repeat`` does (:func:`core.raster.fold_into`): all of them lie on that triangle.
-    Blender 5.2 jitters over the whole texel and keeps the points that land on the chart
-    (:func:`core.texels.footprint_texel_points`)."""
-    from pdic.core.raster import fold_into, rasterize
+    Blender 5.0 and 5.1 jitter over the centred half-texel square and keep the points on the triangle under
+    the texel's centre (:attr:`core.raster.TexelSamples.centre_triangle`; a texel none of whose points land
+    there takes its centre). Blender 5.2 jitters over the whole texel and keeps the points that land on the
+    chart (:func:`core.texels.footprint_texel_points`)."""
+    from pdic.core.raster import barycentric_weights, rasterize, twice_area
     from pdic.core.texels import footprint_texel_points, on_surface
 
     target = scene.targets[target_index]
@@ -164,12 +163,18 @@ def cycles_footprint(scene, target_index: int, texels: np.ndarray, per_axis: int
     strata = np.stack(np.meshgrid(np.arange(m), np.arange(m), indexing="xy"), axis=-1).reshape(-1, 2)
     corner = np.stack([texels % target.width, texels // target.width], axis=1) + 0.25
     pts = corner[:, None, :] + 0.5 * (strata[None] + rng.random((len(texels), m * m, 2))) / m
-    texel = np.repeat(texels, m * m)
-    centre = centre_triangle.reshape(-1)[texel]
+    centre_of = np.stack([texels % target.width, texels // target.width], axis=1) + 0.5
+    pts = np.concatenate([pts, centre_of[:, None, :]], axis=1)  # each texel's centre last, for none landing
+    texel = np.repeat(texels, m * m + 1)
+    tri = centre_triangle.reshape(-1)[texel]
     uv = target.lightmap_uv[local].astype(np.float64) * [target.width, target.height]
-    b = fold_into(uv[centre], pts[..., 0].ravel(), pts[..., 1].ravel())
-    p, n, n_g = on_surface(g, g.face_normals(), target.triangles[local[centre]], b)
-    return (texel, p, n) + ((n_g,) if geometric else ())
+    b = np.stack(barycentric_weights(uv[tri], pts[..., 0].ravel(), pts[..., 1].ravel(), twice_area(uv[tri])), axis=1)
+    on = (b >= 0).all(axis=1).reshape(len(texels), m * m + 1)
+    on[:, -1] = ~on[:, :-1].any(axis=1)
+    on = on.ravel()
+    b = np.clip(b[on], 0.0, None)
+    p, n, n_g = on_surface(g, g.face_normals(), target.triangles[local[tri[on]]], b / b.sum(axis=1, keepdims=True))
+    return (texel[on], p, n) + ((n_g,) if geometric else ())
 
 
 def _compared(pdic, pair, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

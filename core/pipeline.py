@@ -317,16 +317,18 @@ def rasterise_targets(run: "_Run") -> list[TargetTexels]:
         rasterised.append(target.name)
         points, rasters = texel_stage.lift_texels(replace(scene, targets=(target,)), settings.texel_samples,
                                                   run.executor.map, settings.deviations.crease_folding,
-                                                  settings.deviations.edge_folding)
+                                                  settings.deviations.edge_folding, settings.direct_footprint_side)
         return points, rasters[0]
 
     with stats.stage("rasterise"):
         for target in scene.targets:
             # the foldings change the samples, not the texels: they join the key after the hash, so the
             # target's random streams (TargetTexels.stream, the hash's first digits) stay its texels'.
+            folding = settings.deviations.crease_folding or settings.deviations.edge_folding
             key = target_key(scene, target, settings.texel_samples) + (
                 "+crease-folding" if settings.deviations.crease_folding else "") + (
-                "+edge-folding" if settings.deviations.edge_folding else "")
+                "+edge-folding" if settings.deviations.edge_folding else "") + (
+                f"+side{settings.direct_footprint_side:g}" if folding else "")
             # stored under the code's hash too (store.key), as every other kind: a raster of older code is never reused
             points, raster = run.store.memoise("raster", run.store.key("raster", key), lambda: lift(target))
             covered = max(int(raster.coverage.sum()), 1)

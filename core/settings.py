@@ -115,13 +115,13 @@ class Deviations:
     """Texel samples under a face lying over theirs nearer than the rays' offset (a decal 80 um over its wall)
     get no light, as in Cycles (core/contact.py ``under_sheet``). Off: they are lit from beyond the sheet."""
     crease_folding: bool = True
-    """A texel sample across a crease (a geometric normal turning more than CREASE_FOLD_ANGLE) from the
-    triangle under its texel's centre moves onto that triangle, where Cycles bakes the whole texel
-    (core/crease_folding.py)."""
+    """A texel with a sample across a crease (a geometric normal turning more than CREASE_FOLD_ANGLE) from the
+    triangle under its centre is sampled on that triangle alone, over the square Cycles jitters its bake
+    samples in, as Cycles bakes it (core/crease_folding.py, core/raster.py:centre_footprints)."""
     edge_folding: bool = True
-    """In a texel whose centre lies on a triangle, a sub-sample past the chart's edge (on no triangle)
-    folds into that triangle, as Cycles' bake folds its jitter, instead of leaving the texel to its inside
-    samples (core/raster.py:rasterize)."""
+    """So is a texel whose centre lies on a triangle but misses a sub-sample (past the chart's edge), instead of
+    being left to its samples on the chart (core/raster.py:rasterize). The add-on turns it off from Blender 5.2,
+    whose bake jitters over the whole texel."""
     crevice_records: bool = True
     """Final: a texel sample whose surroundings stand nearer than a zone (tracery 2 cm before its wall, the
     crease under an overhang, a corner) gathers a record of its own and takes its E_k instead of Equation 3's

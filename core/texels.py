@@ -11,9 +11,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .crease_folding import fold_across_creases
+from .constants import DIRECT_FOOTPRINT_SIDE
+from .crease_folding import across_creases, crease_texels
 from .executor import TEXEL_CHUNK, slices
-from .raster import footprint_points, rasterize
+from .raster import centre_footprints, footprint_points, rasterize, with_centre_footprints
 from .scene import Scene
 from .vectors import norms
 
@@ -112,9 +113,9 @@ LIFT_CHUNK = 8 * TEXEL_CHUNK
 class TargetRaster:
     """Per-target rasterisation bookkeeping: image size, coverage and Cycles' centre mask;
     ``centre_triangle``: (width * height,) the triangle under each texel's centre, -1 none (indexing the
-    target's triangles of nonzero area, as :func:`footprint_texel_points` does); ``folded``: samples moved
-    onto it (deviation: crease-folding); ``past_edges``: samples folded into it from past a chart's edge
-    (deviation: edge-folding)."""
+    target's triangles of nonzero area, as :func:`footprint_texel_points` does); ``folded``: samples placed on
+    it for texels a crease crosses (deviation: crease-folding); ``past_edges``: the same for texels at a
+    chart's edge (deviation: edge-folding)."""
 
     width: int
     height: int
@@ -127,16 +128,17 @@ class TargetRaster:
 
 
 def lift_texels(scene: Scene, samples_per_axis: int, map=map, crease_folding: bool = False,
-                edge_folding: bool = False) -> tuple[TexelPoints, list[TargetRaster]]:
+                edge_folding: bool = False, footprint_side: float = DIRECT_FOOTPRINT_SIDE
+                ) -> tuple[TexelPoints, list[TargetRaster]]:
     """Rasterise every target's light-map UVs and place the samples on the surface.
 
     Degenerate (zero-area) triangles are dropped here: they hold no surface to light.
     map : runs batches of triangles and of samples (an executor's ``map`` spreads them over
         threads; the points are the same).
-    crease_folding : samples across a crease from their texel's centre triangle move onto it
-        (deviation: crease-folding, :func:`core.crease_folding.fold_across_creases`).
-    edge_folding : sub-samples past a chart's edge fold into their texel's centre triangle
-        (deviation: edge-folding, :func:`core.raster.rasterize`).
+    crease_folding : a texel with a sample across a crease from its centre triangle is sampled on that
+        triangle (deviation: crease-folding, :func:`core.raster.centre_footprints`).
+    edge_folding : so is a texel at a chart's edge (deviation: edge-folding, :func:`core.raster.rasterize`).
+    footprint_side : the width (texels) of the square Cycles jitters a texel's bake samples in.
     """
     geometry = scene.geometry
     face_n = geometry.face_normals()
@@ -146,12 +148,13 @@ def lift_texels(scene: Scene, samples_per_axis: int, map=map, crease_folding: bo
         keep = areas[target.triangles] > 0
         local = np.flatnonzero(keep)
         uv = target.lightmap_uv[local]
-        samples = rasterize(uv, target.width, target.height, samples_per_axis, map, edge_folding)
+        samples = rasterize(uv, target.width, target.height, samples_per_axis, map, edge_folding, footprint_side)
         centre = samples.centre_triangle.reshape(-1)
-        tri_local, b, folded = samples.triangle, samples.barycentric, 0  # b: weights of corners 0, 1, 2
+        folded = 0
         if crease_folding:
-            tri_local, b, folded = fold_across_creases(samples.texel, tri_local, b, centre, uv,
-                                                       face_n[target.triangles[local]], target.width, target.height)
+            creased = crease_texels(samples.texel, samples.triangle, centre, face_n[target.triangles[local]])
+            samples, folded = with_centre_footprints(samples, uv, creased, footprint_side)
+        tri_local, b = samples.triangle, samples.barycentric  # b: weights of corners 0, 1, 2
         tri = target.triangles[local[tri_local]]
         count = len(tri)
         p, n_s, n_g = (np.empty((count, 3)) for _ in range(3))
@@ -190,8 +193,8 @@ def footprint_texel_points(scene: Scene, target_index: int, texels: np.ndarray, 
     rng : the jitter's random stream.
     side : footprint width in texels, centred on the texel (:func:`core.raster.footprint_points`).
     centre_triangle : the target's :attr:`TargetRaster.centre_triangle`, or None: given, points across a
-        crease from the triangle under their texel's centre fold onto it, as :func:`lift_texels`' samples
-        do (deviation: crease-folding).
+        crease from the triangle under their texel's centre are dropped, as Cycles' jitter stays on that
+        triangle; a texel left with none gets its centre (deviation: crease-folding).
     """
     geometry = scene.geometry
     face_n = geometry.face_normals()
@@ -200,13 +203,28 @@ def footprint_texel_points(scene: Scene, target_index: int, texels: np.ndarray, 
     uv = target.lightmap_uv[local]
     texel, tri_local, b = footprint_points(uv, target.width, target.height, texels, per_axis, rng, side)
     if centre_triangle is not None and len(texel):
-        tri_local, b, _ = fold_across_creases(texel, tri_local, b, centre_triangle, uv,
-                                              face_n[target.triangles[local]], target.width, target.height)
+        texel, tri_local, b = _off_creases(texel, tri_local, b, centre_triangle, uv, face_n[target.triangles[local]],
+                                           target.width, target.height)
     tri = target.triangles[local[tri_local]]
     p, n_s, n_g = on_surface(geometry, face_n, tri, b)
     counts = np.bincount(texel, minlength=target.width * target.height)
     weight = (1.0 / np.maximum(counts[texel], 1)).astype(np.float32)
     return TexelPoints(p, n_s, n_g, tri, b[:, 1:3].copy(), np.full(len(tri), target_index, np.int32), texel, weight)
+
+
+def _off_creases(texel, tri, b, centre_triangle, uv, normals, width, height):
+    """Footprint points (texel, triangle, barycentric) without those across a crease from their texel's centre
+    triangle; a texel that loses them all gets its centre (:func:`core.raster.centre_footprints`)."""
+    across = across_creases(texel, tri, centre_triangle, normals)
+    if not across.any():
+        return texel, tri, b
+    emptied = np.setdiff1d(texel[across], texel[~across])
+    p_texel = np.asarray(uv, np.float64) * [width, height]
+    c_texel, c_tri, c_b = centre_footprints(p_texel, width, emptied, centre_triangle[emptied].astype(np.int64),
+                                            side=0.0, per_axis=1)
+    texel, tri, b = (np.concatenate([a[~across], c]) for a, c in ((texel, c_texel), (tri, c_tri), (b, c_b)))
+    order = np.argsort(texel, kind="stable")
+    return texel[order], tri[order], b[order]
 
 
 def on_surface(geometry, face_n, tri, b):

@@ -39,14 +39,15 @@ def _plane(resolution: int = 8):
     return quad_scene(faces, {"floor": (0, resolution)}, (lamp,))
 
 
-def test_cycles_footprint_of_blender_5_0_folds_the_half_texel_onto_the_centre_triangle():
-    """Blender 5.0's bake jitters over the centred half-texel square and mirrors whatever leaves the centre's
-    triangle back into it: a texel on the quad's diagonal, whose half-square straddles both triangles, gets
-    every point on the one under its centre, and an interior texel's points stay in its half-square."""
+def test_cycles_footprint_of_blender_5_0_keeps_the_half_texel_on_the_centre_triangle():
+    """Blender 5.0's bake jitters over the centred half-texel square and keeps the points on the triangle under
+    the texel's centre: a texel on the quad's diagonal, whose half-square straddles both triangles, keeps the
+    part on that triangle only, and an interior texel's points all stay in its half-square."""
     scene = _plane()
     texels = np.array([3 * 8 + 3, 3 * 8 + 5])  # (3, 3) on the diagonal, (3, 5) inside triangle 0
     texel, p, n = path_referee.cycles_footprint(scene, 0, texels, 4, np.random.default_rng(1), blender_52=False)
-    assert np.bincount(texel, minlength=texels.max() + 1)[texels].tolist() == [16, 16]
+    counts = np.bincount(texel, minlength=texels.max() + 1)[texels]
+    assert 2 <= counts[0] <= 14 and counts[1] == 16
     x, y = (p[:, :2] - scene.geometry.positions[:, 0, :2].min(axis=0)).T * 8  # texel units
     diagonal = texel == texels[0]
     below = x[diagonal] >= y[diagonal] - 1e-9  # UV triangle 0 holds s >= t
