@@ -62,6 +62,25 @@ def _direct(crease_folding: bool) -> tuple[np.ndarray, dict]:
     return result.lightmaps["strip"][..., 0], result.stats["counters"]
 
 
+
+def _cycles_direct(bpy, name: str, tris: np.ndarray, uv: np.ndarray, light, res: int, spp: int) -> np.ndarray:
+    """(res, res) Cycles' Diffuse Direct bake of triangles ``tris`` (t, 3, 3, world space) into their light-map
+    UVs ``uv`` (t, 3, 2), lit by a point light of POWER and radius 0 at ``light`` under a black world."""
+    import cycles_reference as cr
+
+    world = bpy.data.worlds.new("World")
+    world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
+    bpy.context.scene.world = world
+    mesh = bpy.data.meshes.new(name)
+    faces = [(3 * i, 3 * i + 1, 3 * i + 2) for i in range(len(tris))]
+    mesh.from_pydata([tuple(v) for v in tris.reshape(-1, 3)], [], faces)
+    mesh.uv_layers.new(name="UVMap").data.foreach_set("uv", np.asarray(uv).reshape(-1).astype(np.float64))
+    ob = bpy.data.objects.new(name, mesh)
+    bpy.context.scene.collection.objects.link(ob)
+    bpy.ops.object.light_add(type="POINT", location=tuple(light))
+    bpy.context.object.data.energy, bpy.context.object.data.shadow_soft_size = POWER, 0.0
+    return cr.cycles_bake_full([ob], "UVMap", res, res, {"DIRECT"}, spp).images[ob.name][..., 0]
+
 def test_centre_footprints_keep_the_strata_on_the_centre_triangle_or_take_the_centre():
     # texel (1, 1) of a triangle whose long edge runs through its centre; texel (1, 5) of a sliver 0.05 wide
     p_texel = np.array([[[1.5, 0.0], [1.5, 4.0], [3.0, 0.0]], [[1.475, 4.0], [1.525, 4.0], [1.5, 8.0]]])
@@ -144,22 +163,8 @@ def test_straddling_texels_hold_the_light_cycles_bakes_on_their_centre_face(blen
     sub-texel jitter as noise): the straddling column within 5 % with crease-folding (Blender 5.0.1 within
     0.6 %, 5.2.3 1.8 % under), over twice as bright without (3.2-3.4x: half of each texel's samples on the
     flat part, facing the light); the rest unchanged."""
-    import cycles_reference as cr
-
-    bpy = blender
-    world = bpy.data.worlds.new("World")
-    world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
-    bpy.context.scene.world = world
     tris, uv = _strip_corners()
-    mesh = bpy.data.meshes.new("Strip")
-    mesh.from_pydata([tuple(v) for v in tris.reshape(-1, 3)], [], [(3 * i, 3 * i + 1, 3 * i + 2) for i in range(4)])
-    layer = mesh.uv_layers.new(name="UVMap")
-    layer.data.foreach_set("uv", uv.reshape(-1).astype(np.float64))
-    strip = bpy.data.objects.new("Strip", mesh)
-    bpy.context.scene.collection.objects.link(strip)
-    bpy.ops.object.light_add(type="POINT", location=tuple(LIGHT))
-    bpy.context.object.data.energy, bpy.context.object.data.shadow_soft_size = POWER, 0.0
-    C = cr.cycles_bake_full([strip], "UVMap", RES, RES, {"DIRECT"}, 64).images[strip.name][..., 0]
+    C = _cycles_direct(blender, "Strip", tris, uv, LIGHT, RES, 64)
     inner = slice(1, RES - 1)
     with_fold, without = pdic_direct[True][0], pdic_direct[False][0]
     straddling = C[inner, 4]
@@ -217,25 +222,12 @@ def test_edge_texels_hold_the_light_this_blenders_cycles_bakes_there(blender):
     is steep): the outermost texels nearer to it with the edge-folding the add-on picks for the running
     Blender than with the other (Blender 5.0.1: 0.8 % against 6.1 % on average; 5.2.3, whose jitter spans
     the whole texel: 1.7 % without folding against 5.2 % with)."""
-    import cycles_reference as cr
-
     from pdic.pdic_addon.properties import cycles_folds_past_edges
 
     bpy = blender
-    world = bpy.data.worlds.new("World")
-    world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
-    bpy.context.scene.world = world
     scene = _inset_plane()
     tris = scene.geometry.positions.reshape(-1, 3, 3) + scene.origin_world
-    mesh = bpy.data.meshes.new("Floor")
-    mesh.from_pydata([tuple(v) for v in tris.reshape(-1, 3)], [], [(0, 1, 2), (3, 4, 5)])
-    layer = mesh.uv_layers.new(name="UVMap")
-    layer.data.foreach_set("uv", scene.targets[0].lightmap_uv.reshape(-1).astype(np.float64))
-    floor = bpy.data.objects.new("Floor", mesh)
-    bpy.context.scene.collection.objects.link(floor)
-    bpy.ops.object.light_add(type="POINT", location=(-0.05, 0.5, 0.3))
-    bpy.context.object.data.energy, bpy.context.object.data.shadow_soft_size = POWER, 0.0
-    C = cr.cycles_bake_full([floor], "UVMap", RES, RES, {"DIRECT"}, 64).images[floor.name][..., 0]
+    C = _cycles_direct(bpy, "Floor", tris, scene.targets[0].lightmap_uv, (-0.05, 0.5, 0.3), RES, 64)
     error = {}
     for on in (True, False):
         result = bake(scene, replace(DIRECT, deviations=replace(Deviations(), edge_folding=on)))
@@ -278,23 +270,11 @@ def test_a_slivers_texels_hold_the_light_cycles_bakes_there(blender):
     Blender: within 1 % on average and 5 % at worst (Blender 5.0.1: 0.24 / 2.0 %, 5.2.3: 0.49 / 2.9 %). The
     barycentric mirror of the jitter PDIC took for Cycles' before moved a sample metres along the strip:
     95x off on average."""
-    import cycles_reference as cr
-
     from pdic.pdic_addon.properties import cycles_folds_past_edges, cycles_footprint_side
 
     bpy = blender
-    world = bpy.data.worlds.new("World")
-    world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
-    bpy.context.scene.world = world
     tris, uv = _sliver()
-    mesh = bpy.data.meshes.new("Sliver")
-    mesh.from_pydata([tuple(v) for v in tris.reshape(-1, 3)], [], [(0, 1, 2), (3, 4, 5)])
-    mesh.uv_layers.new(name="UVMap").data.foreach_set("uv", uv.reshape(-1).astype(np.float64))
-    sliver = bpy.data.objects.new("Sliver", mesh)
-    bpy.context.scene.collection.objects.link(sliver)
-    bpy.ops.object.light_add(type="POINT", location=tuple(SLIVER_LIGHT))
-    bpy.context.object.data.energy, bpy.context.object.data.shadow_soft_size = POWER, 0.0
-    C = cr.cycles_bake_full([sliver], "UVMap", SLIVER_RES, SLIVER_RES, {"DIRECT"}, 256).images[sliver.name][..., 0]
+    C = _cycles_direct(bpy, "Sliver", tris, uv, SLIVER_LIGHT, SLIVER_RES, 256)
     local, origin = recentre(tris)
     mats = Materials(("grey",), np.full((1, 3), 0.8), np.full(1, -1), np.zeros((1, 3)))
     scene = Scene(geometry(local, np.zeros(2, np.int32), np.zeros(2, np.int32)), mats,
