@@ -157,9 +157,10 @@ def cycles_footprint_side(version: tuple) -> float:
 
 
 def cycles_folds_past_edges(version: tuple) -> bool:
-    """Does this Blender's Cycles bake fold a texel's jitter that leaves the chart back into the triangle
-    under the texel's centre (before 5.2), rather than keep only the part on the chart (5.2)? Measured on
-    a chart edge through its outer texels (tests/test_folding.py): the deviation edge-folding follows it."""
+    """Should texels at a chart's edge be sampled on the triangle under their centre over Cycles' half-texel
+    jitter (before 5.2), rather than by their samples on the chart (5.2, whose jitter spans the whole
+    texel)? Measured on chart edges through outer texels and along a one-texel sliver (tests/test_folding.py):
+    the deviation edge-folding follows it."""
     return tuple(version) < CYCLES_WHOLE_TEXEL_FOOTPRINT
 
 
