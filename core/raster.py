@@ -210,8 +210,8 @@ def centre_footprints(p_texel: np.ndarray, width: int, texels: np.ndarray, centr
 
     Cycles jitters a texel's bake samples over the square of ``side`` texels centred on it and keeps them on
     that triangle (a 10.8 m x 1.5 cm strip charted one texel wide: Cycles 5.0.1's Diffuse Direct within 0.3 %
-    of the jitter restricted to the triangle, 22x off from any barycentric mirror that leaves its first
-    weight's corner, tests/test_folding.py). Here the jitter's ``per_axis`` x ``per_axis`` strata centres over
+    of the jitter restricted to the triangle and 22x off from the barycentric mirror of Blender 3's bake kernel,
+    tests/test_folding.py). Here the jitter's ``per_axis`` x ``per_axis`` strata centres over
     that square stand for it, those on the triangle; a texel none of whose strata lie on it (a sliver
     narrower than a stratum) gets its centre, which does.
 
