@@ -519,6 +519,7 @@ if __name__ == "__main__":
     ap.add_argument("--scenes", default=",".join(DEFAULT_SCENES), help=f"comma-separated: {', '.join(SCENES)}")
     ap.add_argument("--quick", action="store_true")
     a = ap.parse_args()
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script: the repository's bench.run
     sys.exit(__import__("bench.run", fromlist=["main"]).main(["--only", "competitors", "--competitors", a.scenes]
                                                             + (["--quick"] if a.quick else [])))
 
