@@ -149,7 +149,7 @@ def cycles_footprint(scene, target_index: int, texels: np.ndarray, per_axis: int
     the texel's centre (:attr:`core.raster.TexelSamples.centre_triangle`; a texel none of whose points land
     there takes its centre). Blender 5.2 jitters over the whole texel and keeps the points that land on the
     chart (:func:`core.texels.footprint_texel_points`)."""
-    from pdic.core.raster import barycentric_weights, rasterize, twice_area
+    from pdic.core.raster import on_centre_triangles, rasterize
     from pdic.core.texels import footprint_texel_points, on_surface
 
     target = scene.targets[target_index]
@@ -161,20 +161,11 @@ def cycles_footprint(scene, target_index: int, texels: np.ndarray, per_axis: int
     centre_triangle = rasterize(target.lightmap_uv[local], target.width, target.height, 1).centre_triangle
     m = per_axis
     strata = np.stack(np.meshgrid(np.arange(m), np.arange(m), indexing="xy"), axis=-1).reshape(-1, 2)
-    corner = np.stack([texels % target.width, texels // target.width], axis=1) + 0.25
-    pts = corner[:, None, :] + 0.5 * (strata[None] + rng.random((len(texels), m * m, 2))) / m
-    centre_of = np.stack([texels % target.width, texels // target.width], axis=1) + 0.5
-    pts = np.concatenate([pts, centre_of[:, None, :]], axis=1)  # each texel's centre last, for none landing
-    texel = np.repeat(texels, m * m + 1)
-    tri = centre_triangle.reshape(-1)[texel]
+    jitter = 0.5 * (strata[None] + rng.random((len(texels), m * m, 2))) / m - 0.25  # the centred half texel
     uv = target.lightmap_uv[local].astype(np.float64) * [target.width, target.height]
-    b = np.stack(barycentric_weights(uv[tri], pts[..., 0].ravel(), pts[..., 1].ravel(), twice_area(uv[tri])), axis=1)
-    on = (b >= 0).all(axis=1).reshape(len(texels), m * m + 1)
-    on[:, -1] = ~on[:, :-1].any(axis=1)
-    on = on.ravel()
-    b = np.clip(b[on], 0.0, None)
-    p, n, n_g = on_surface(g, g.face_normals(), target.triangles[local[tri[on]]], b / b.sum(axis=1, keepdims=True))
-    return (texel[on], p, n) + ((n_g,) if geometric else ())
+    texel, tri, b = on_centre_triangles(uv, target.width, texels, centre_triangle.reshape(-1)[texels], jitter)
+    p, n, n_g = on_surface(g, g.face_normals(), target.triangles[local[tri]], b)
+    return (texel, p, n) + ((n_g,) if geometric else ())
 
 
 def _compared(pdic, pair, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -219,18 +219,29 @@ def centre_footprints(p_texel: np.ndarray, width: int, texels: np.ndarray, centr
     the triangle (indexing ``p_texel``) under each one's centre.
     """
     m = int(per_axis)
-    offsets = ((np.arange(m) + 0.5) / m - 0.5) * side
-    ox, oy = (o.ravel() for o in np.meshgrid(offsets, offsets, indexing="xy"))
-    cx, cy = texels % width + 0.5, texels // width + 0.5
-    x = np.concatenate([(cx[:, None] + ox).ravel(), cx])  # the strata, then each texel's centre
-    y = np.concatenate([(cy[:, None] + oy).ravel(), cy])
-    texel = np.concatenate([np.repeat(texels, m * m), texels])
-    tri = np.concatenate([np.repeat(centre_tri, m * m), centre_tri])
+    steps = ((np.arange(m) + 0.5) / m - 0.5) * side
+    offsets = np.stack(np.meshgrid(steps, steps, indexing="xy"), axis=-1).reshape(-1, 2)
+    return on_centre_triangles(p_texel, width, texels, centre_tri, offsets)
+
+
+def on_centre_triangles(p_texel: np.ndarray, width: int, texels: np.ndarray, centre_tri: np.ndarray,
+                        offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(texel (f,), triangle (f,), barycentric (f, 3)): the points at each texel's centre plus ``offsets``
+    ((m, 2) for all texels, or (k, m, 2), texel units) that lie on its centre triangle ``centre_tri`` (k,),
+    as Cycles keeps its bake jitter there; a texel none of whose points do gets its centre, which does.
+    p_texel : (t, 3, 2) the UV triangles in texel units; texels : (k,) flat texel indices."""
+    k = len(texels)
+    centre = np.stack([texels % width + 0.5, texels // width + 0.5], axis=1)
+    offsets = np.broadcast_to(offsets, (k,) + np.shape(offsets)[-2:])
+    points = np.concatenate([centre[:, None, :] + offsets, centre[:, None, :]], axis=1)  # each centre last
+    m = points.shape[1]
+    texel, tri = np.repeat(texels, m), np.repeat(centre_tri, m)
     corners = p_texel[tri]
-    bary = np.stack(barycentric_weights(corners, x, y, twice_area(corners)), axis=1)
-    on = (bary >= -INSIDE_EPS).all(axis=1)
-    strata = len(texels) * m * m
-    on[strata:] = ~on[:strata].reshape(len(texels), m * m).any(axis=1)  # the centre only where no stratum lies on it
+    bary = np.stack(barycentric_weights(corners, points[..., 0].ravel(), points[..., 1].ravel(),
+                                        twice_area(corners)), axis=1)
+    on = (bary >= -INSIDE_EPS).all(axis=1).reshape(k, m)
+    on[:, -1] = ~on[:, :-1].any(axis=1)  # the centre only where no other point lies on the triangle
+    on = on.ravel()
     bary = np.clip(bary[on], 0.0, None)
     return texel[on], tri[on], bary / bary.sum(axis=1, keepdims=True)
 

@@ -14,7 +14,7 @@ import numpy as np
 from .constants import DIRECT_FOOTPRINT_SIDE
 from .crease_folding import across_creases, crease_texels
 from .executor import TEXEL_CHUNK, slices
-from .raster import centre_footprints, footprint_points, rasterize, with_centre_footprints
+from .raster import footprint_points, on_centre_triangles, rasterize, with_centre_footprints
 from .scene import Scene
 from .vectors import norms
 
@@ -214,14 +214,14 @@ def footprint_texel_points(scene: Scene, target_index: int, texels: np.ndarray, 
 
 def _off_creases(texel, tri, b, centre_triangle, uv, normals, width, height):
     """Footprint points (texel, triangle, barycentric) without those across a crease from their texel's centre
-    triangle; a texel that loses them all gets its centre (:func:`core.raster.centre_footprints`)."""
+    triangle; a texel that loses them all gets its centre (:func:`core.raster.on_centre_triangles`)."""
     across = across_creases(texel, tri, centre_triangle, normals)
     if not across.any():
         return texel, tri, b
     emptied = np.setdiff1d(texel[across], texel[~across])
     p_texel = np.asarray(uv, np.float64) * [width, height]
-    c_texel, c_tri, c_b = centre_footprints(p_texel, width, emptied, centre_triangle[emptied].astype(np.int64),
-                                            side=0.0, per_axis=1)
+    c_texel, c_tri, c_b = on_centre_triangles(p_texel, width, emptied, centre_triangle[emptied].astype(np.int64),
+                                              np.zeros((0, 2)))
     texel, tri, b = (np.concatenate([a[~across], c]) for a, c in ((texel, c_texel), (tri, c_tri), (b, c_b)))
     order = np.argsort(texel, kind="stable")
     return texel[order], tri[order], b[order]
