@@ -11,7 +11,8 @@ texels both cover, the noise-corrected relative RMS error (bench/run.py), the sa
 sample, where Cycles' bake rays see other geometry than PDIC's; chart edges in), over *interior*
 texels only (``bench.run.interior_texels``) and over texels not buried (no part of the footprint
 inside closed geometry, ``BakeResult.buried``), the 8x8 blocks judged and those off by more than 20 %
-(``bench.run.blocks_off``, over all texels, comparable ones and those not buried), photons stored and the bake's CPU
+(``bench.run.blocks_off``, over all texels, comparable ones and those not buried; the last also by the
+texels a block holds, ``bench.run.blocks_off_by_fill``), photons stored and the bake's CPU
 seconds (``threads=1``). ``--figure5`` runs bench/run.py's [Chr99]-vs-Preview comparison against the same
 references instead.
 """
@@ -84,6 +85,7 @@ def measure(name: str, scene, pair, quality: str, overrides: dict, switches: str
                blocks_judged_off=bench_run.blocks_off(result.indirect, result.centre_inside, pair),
                blocks_judged_off_comparable=bench_run.blocks_off(result.indirect, comparable, pair),
                blocks_judged_off_outside=bench_run.blocks_off(result.indirect, outside, pair),
+               blocks_off_outside_by_fill=bench_run.blocks_off_by_fill(result.indirect, outside, pair),
                photons_stored=c.get("photons_stored"), photon_bytes=c.get("photon_bytes"),
                photons_before_control=c.get("photons_before_control"), records=c.get("records"),
                hole_records=c.get("hole_records"), stage_seconds=s)

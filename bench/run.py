@@ -239,8 +239,8 @@ def noise_corrected_error(images: dict, covered: dict, pair) -> float:
 def blocks_off(images: dict, covered: dict, pair) -> tuple[int, int]:
     """(8x8 blocks judged, blocks whose mean luminance is off by more than BLOCK_OFF) of E/pi ``images``
     against the mean of two Cycles bakes, over ``covered`` texels both bakes cover, summed over the
-    images (``bench.competitors.block_differences``; a block's 64 texels average the pair's noise down
-    8x)."""
+    images (``bench.competitors.block_differences``; a full block's 64 texels average the pair's noise
+    down 8x, a block at a chart's edge may hold one texel: :func:`blocks_off_by_fill`)."""
     from pdic.bench.competitors import BLOCK_OFF, block_differences
 
     a, b = (_bake_dict(p) for p in pair)
@@ -250,6 +250,37 @@ def blocks_off(images: dict, covered: dict, pair) -> tuple[int, int]:
         rel, ok, _, _ = block_differences(images[n], 0.5 * (a["images"][n] + b["images"][n]), mask)
         judged, off = judged + int(ok.sum()), off + int((ok & (rel > BLOCK_OFF)).sum())
     return judged, off
+
+
+BLOCK_FILL_BANDS = (1, 4, 8, 16, 65)
+"""Bands [lo, hi) of judged texels per 8x8 block that :func:`blocks_off_by_fill` counts apart. A block
+holding one texel is judged on that texel: on its noise and on where the two bakers sample a chart's
+edge, not on the low-frequency error (blotches) the block criterion is after."""
+
+
+def blocks_off_by_fill(images: dict, covered: dict, pair) -> list:
+    """:func:`blocks_off` per band of judged texels per block (BLOCK_FILL_BANDS), summed over the images:
+    [(lo, hi, blocks judged, blocks off from the pair's mean, blocks where one Cycles bake of the pair is
+    off from the other)]. The last is a yardstick: two seeds of the reference itself, judged alike."""
+    from pdic.bench.competitors import BLOCK, BLOCK_OFF, block_differences, pad_to_blocks
+
+    a, b = (_bake_dict(p) for p in pair)
+    bands = np.array(BLOCK_FILL_BANDS)
+    judged, off, seeds_off = (np.zeros(len(bands) - 1, np.int64) for _ in range(3))
+    for n in (n for n in a["images"] if n in images):
+        mask = a["coverage"][n] & b["coverage"][n] & covered[n]
+        rel, ok, _, _ = block_differences(images[n], 0.5 * (a["images"][n] + b["images"][n]), mask)
+        rel_seeds, _, _, _ = block_differences(a["images"][n], b["images"][n], mask)
+        m = pad_to_blocks(mask, BLOCK)
+        fill = m.reshape(m.shape[0] // BLOCK, BLOCK, m.shape[1] // BLOCK, BLOCK).sum(axis=(1, 3))
+        band = np.searchsorted(bands, fill, side="right") - 1
+        for i in range(len(bands) - 1):
+            inside = ok & (band == i)
+            judged[i] += int(inside.sum())
+            off[i] += int((inside & (rel > BLOCK_OFF)).sum())
+            seeds_off[i] += int((inside & (rel_seeds > BLOCK_OFF)).sum())
+    return [(int(bands[i]), int(bands[i + 1]), int(judged[i]), int(off[i]), int(seeds_off[i]))
+            for i in range(len(bands) - 1)]
 
 
 def interior_texels(scene, texel_samples: int = 2) -> dict:

@@ -76,6 +76,32 @@ def test_blocks_off_counts_the_blocks_more_than_20_percent_off_and_judges_no_dar
     assert rel[0, 0] == pytest.approx(0.3) and rel[1, 1] == pytest.approx(0.15) and not ok[5, 0]
 
 
+def test_blocks_off_by_fill_sorts_blocks_by_the_texels_judged_and_judges_the_pair_by_itself():
+    """A block of one texel 30 % bright and a full block 25 % bright are off in their own bands; where the
+    pair's second bake is 60 % bright, the test (the first bake's value) is 23 % off their mean and the
+    two bakes 37.5 % off each other."""
+    from pdic.bench.run import blocks_off_by_fill
+
+    h, w = 32, 32
+    truth = _field(h, w)
+    covered = np.ones((h, w), bool)
+    covered[0:8, 0:8] = False
+    covered[3, 3] = True  # block (0, 0) holds one texel
+    covered[8:16, 0:8] = False
+    covered[8:14, 0:1] = True  # block (1, 0) holds six
+    test = truth.copy()
+    test[3, 3] *= 1.3
+    test[16:24, 16:24] *= 1.25
+    second = truth.copy()
+    second[24:32, 24:32] *= 1.6
+    pair = ({"images": {"o": truth}, "coverage": {"o": covered}}, {"images": {"o": second}, "coverage": {"o": covered}})
+    bands = blocks_off_by_fill({"o": test}, {"o": covered}, pair)
+    assert [band[:2] for band in bands] == [(1, 4), (4, 8), (8, 16), (16, 65)]
+    assert [band[2] for band in bands] == [1, 1, 0, 14]
+    assert [band[3] for band in bands] == [1, 0, 0, 2]
+    assert [band[4] for band in bands] == [0, 0, 0, 1]
+
+
 def test_equal_error_time_follows_the_ladder_log_log():
     rows = _ladder([(t, 1 / np.sqrt(t)) for t in (1.0, 4.0, 16.0, 64.0)])  # Monte Carlo: error ~ t^-1/2
     at = lambda e: competitors.cycles_cpu_at_error(rows, "Cycles", "all", "texel", e)  # noqa: E731
