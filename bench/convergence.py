@@ -126,8 +126,10 @@ def main(argv=None):
                     "PDIC's own seed-to-seed noise and its systematic error")
     ap.add_argument("--figure5", action="store_true")
     ap.add_argument("--tag", default="", help="references baked with bench/converged_references.py --tag "
-                    "(e.g. _b52; for Blender 5.2's Cycles also --deviations edge_folding=0, as the add-on sets it)")
+                    "(e.g. _b52; for Blender 5.2's Cycles also --deviations edge_folding=0 --footprint-side 1, as the add-on sets them)")
     ap.add_argument("--deviations", default="", help="Deviations switches, e.g. path_visibility=1")
+    ap.add_argument("--footprint-side", type=float, default=None,
+                    help="direct_footprint_side (texels): 1 for Blender 5.2's Cycles, as the add-on sets it")
     ap.add_argument("--kernel-coverage", choices=("default", "on", "off"), default="default",
                     help="force E_k's surface-coverage kernel on or off at both qualities")
     args = ap.parse_args(argv)
@@ -146,8 +148,9 @@ def main(argv=None):
         masks = bench_run.texel_masks(scene, preset(args.quality).texel_samples)
         for bounces in (int(b) for b in args.bounces.split(",")):
             for n in (int(v) for v in args.density_control.split(",")):
+                side = {} if args.footprint_side is None else dict(direct_footprint_side=args.footprint_side)
                 measure(name, scene, pair, args.quality,
-                        dict(max_bounces=bounces, density_control=n, photons=photons), args.deviations, masks,
+                        dict(max_bounces=bounces, density_control=n, photons=photons, **side), args.deviations, masks,
                         [int(v) for v in args.seeds.split(",")])
 
 

@@ -36,6 +36,9 @@ BATCH_ELEMENTS = 1 << 21
 # A point whose barycentrics are all >= -INSIDE_EPS counts as inside (closes
 # float gaps on shared edges; duplicates are then resolved to one triangle).
 INSIDE_EPS = 1e-9
+# Where Blender's bake samples a texel (x, y), relative to its centre (x + 0.5, y + 0.5): RE_bake_pixels_populate
+# scans u * width - 0.501, v * height - 0.502 (render/intern/bake.cc).
+BLENDER_SCAN_OFFSET = np.array([0.001, 0.002])
 # UV triangles with twice-area below this (texels^2) cover nothing and are skipped.
 MIN_AREA2 = 1e-14
 # Clipped overlaps below this area (texels^2) are mere contact at an edge or a corner.
@@ -145,6 +148,12 @@ def rasterize(uv: np.ndarray, width: int, height: int, samples_per_axis: int = 2
     centre_inside[centre] = True
     centre_triangle = np.full(width * height, -1, np.int32)
     centre_triangle[centre] = centre_tri
+    # Blender's bake gives a texel to the triangle under (x + 0.501, y + 0.502), not its centre: where the
+    # centre lies on a shared edge (xatlas puts chart corners on texel centres) that decides which
+    # triangle Cycles jitters on. Texels whose scan point is on no triangle keep their centre's.
+    scan, scan_tri, _ = _grid_hits(p_texel - BLENDER_SCAN_OFFSET, width, height, 1, map)
+    keep = centre_inside[scan]
+    centre_triangle[scan[keep]] = scan_tri[keep]
 
     sx, sy = sample % (width * n), sample // (width * n)
     texel = (sy // n) * width + sx // n

@@ -140,3 +140,19 @@ def test_one_pair_per_sample_matches_the_sort_of_all_pairs(rng):
     expected = order[np.r_[True, sample[order][1:] != sample[order][:-1]]]
     assert np.array_equal(_one_per_sample(sample, tri, least, 500), expected)  # dense tables
     assert np.array_equal(_one_per_sample(sample, tri, least, 10 ** 6), expected)  # a sparse grid: one sort
+
+
+@pytest.mark.parametrize("order", [(0, 1), (1, 0)])
+def test_a_centre_on_a_shared_edge_belongs_to_the_triangle_under_blenders_scan_point(order):
+    """A 2x2-texel square split along its diagonal through texel (0, 0)'s and (1, 1)'s centres: Blender's bake
+    gives those texels to the triangle under (x + 0.501, y + 0.502), above the diagonal, whatever the
+    triangles' order; the other texels keep the triangle under their centre."""
+    above = [(0, 0), (2, 2), (0, 2)]
+    below = [(0, 0), (2, 0), (2, 2)]
+    tris = [above, below]
+    uv = np.array([tris[i] for i in order], np.float64) / 2
+    s = rasterize(uv, 2, 2, 2)
+    index = {tuple(map(tuple, t)): k for k, t in enumerate(uv * 2)}
+    up, down = index[tuple(map(tuple, np.array(above, float)))], index[tuple(map(tuple, np.array(below, float)))]
+    assert s.centre_triangle[0, 0] == up and s.centre_triangle[1, 1] == up
+    assert s.centre_triangle[1, 0] == up and s.centre_triangle[0, 1] == down  # row 1 is v in [0.5, 1)
