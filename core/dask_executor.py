@@ -326,8 +326,15 @@ class DaskExecutor(Executor):
         for resource in ("client", "_cluster"):
             thing = getattr(self, resource, None)
             if thing is not None:
-                thing.close()
                 setattr(self, resource, None)
+                try:
+                    thing.close()
+                except KeyError:
+                    # A local cluster's status watcher may look up a worker that its own bookkeeping dropped
+                    # as the workers shut down (dask/distributed#5407, seen with 2026.8 on a loaded machine):
+                    # the workers and the scheduler are closed all the same, and the bake's results are in.
+                    if resource == "client":
+                        raise
         super().close()
 
 
