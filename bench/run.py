@@ -240,16 +240,10 @@ def blocks_off(images: dict, covered: dict, pair) -> tuple[int, int]:
     """(8x8 blocks judged, blocks whose mean luminance is off by more than BLOCK_OFF) of E/pi ``images``
     against the mean of two Cycles bakes, over ``covered`` texels both bakes cover, summed over the
     images (``bench.competitors.block_differences``; a full block's 64 texels average the pair's noise
-    down 8x, a block at a chart's edge may hold one texel: :func:`blocks_off_by_fill`)."""
-    from pdic.bench.competitors import BLOCK_OFF, block_differences
-
-    a, b = (_bake_dict(p) for p in pair)
-    judged = off = 0
-    for n in (n for n in a["images"] if n in images):
-        mask = a["coverage"][n] & b["coverage"][n] & covered[n]
-        rel, ok, _, _ = block_differences(images[n], 0.5 * (a["images"][n] + b["images"][n]), mask)
-        judged, off = judged + int(ok.sum()), off + int((ok & (rel > BLOCK_OFF)).sum())
-    return judged, off
+    down 8x, a block at a chart's edge may hold one texel: :func:`blocks_off_by_fill`, whose bands these
+    totals sum)."""
+    bands = blocks_off_by_fill(images, covered, pair)
+    return sum(band[2] for band in bands), sum(band[3] for band in bands)
 
 
 BLOCK_FILL_BANDS = (1, 4, 8, 16, 65)

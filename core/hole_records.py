@@ -105,12 +105,13 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
             fine = _fine_samples(filled.smallest, sample_to_point, texel_size, settings)
             if len(fine):
                 progress.begin(f"Interpolating the cache at {len(fine):,} texel samples in small zones")
-                E_fine, w_fine = interpolate(filled.cache, params.a, settings.gradients, points.p[valid[fine]],
-                                             points.n_shading[valid[fine]], executor, progress,
+                samples = valid[fine]  # the small-zone samples' indices into ``points``
+                E_fine, w_fine = interpolate(filled.cache, params.a, settings.gradients, points.p[samples],
+                                             points.n_shading[samples], executor, progress,
                                              caster=_record_visibility(caster, params), sky=sky is not None,
                                              layers=settings.refine)
                 covered = w_fine > 0
-                E[valid[fine[covered]]] = E_fine[covered]
+                E[samples[covered]] = E_fine[covered]
         except BaseException:
             gathering.stop()
             raise
