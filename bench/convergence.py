@@ -126,8 +126,7 @@ def main(argv=None):
                     "PDIC's own seed-to-seed noise and its systematic error")
     ap.add_argument("--figure5", action="store_true")
     ap.add_argument("--tag", default="", help="references baked with bench/converged_references.py --tag "
-                    "(e.g. _b52; for Blender 5.2's Cycles also --deviations edge_folding=0 --footprint-side 1, "
-                    "as the add-on sets them)")
+                    "(e.g. _b52; for Blender 5.2's Cycles also --footprint-side 1, as the add-on sets it)")
     ap.add_argument("--deviations", default="", help="Deviations switches, e.g. path_visibility=1")
     ap.add_argument("--footprint-side", type=float, default=None,
                     help="direct_footprint_side (texels): 1 for Blender 5.2's Cycles, as the add-on sets it")

@@ -190,7 +190,7 @@ def _traced_per_texel(texels: np.ndarray, texel: np.ndarray, mean: np.ndarray, s
 
 def _audited_bake(name: str, tag: str, seed: int):
     """(core scene, Cycles pair, PDIC Final bake, whether the pair is Blender 5.2's) of a converged scene; the
-    bake takes the footprint and edge folding the add-on sets for that Blender."""
+    bake takes the footprint the add-on sets for that Blender."""
     from bench import convergence
     from pdic.core.pipeline import bake
     from pdic.core.settings import preset
@@ -199,8 +199,7 @@ def _audited_bake(name: str, tag: str, seed: int):
     blender_52 = tag == "_b52"
     settings = preset("FINAL", seed=seed)
     if blender_52:
-        settings = replace(settings, deviations=replace(settings.deviations, edge_folding=False),
-                           direct_footprint_side=1.0)
+        settings = replace(settings, direct_footprint_side=1.0)
     return scene, pair, bake(scene, settings), blender_52
 
 

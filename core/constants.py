@@ -311,12 +311,6 @@ triangle, against the competitors bench's 128-spp Cycles pair (noise subtracted)
 13.26 / 11.50 % before (quarter-point samples, a barycentric mirror across edges), 2 per axis 7.46 / 8.30 %,
 3 7.58 / 7.15 %, 4 6.63 / 4.85 % (the edge texels alone: 4 per axis 7.54 / 5.15 %, 36 jittered points
 as Cycles' 7.75 / 6.04 %)."""
-CREASE_FOLD_ANGLE = 25.0
-"""Degrees a sample's triangle may turn from its texel's centre triangle before the sample folds onto
-the centre triangle (deviation: crease-folding, core/crease_folding.py): a 12-sided column's 30-degree
-facets fold, a smooth surface's tessellation does not. Measured 10 and 25 (seeds 0 / 1): the cathedral
-8.56 / 8.43 % against 8.67 / 8.47 %, Sponza held 9.39 / 9.31 % (7,347 samples folded) against 9.22 /
-9.21 % (2,207), its interior texels 6.18 / 6.08 % against 6.00 / 5.95 % (5.94 / 5.90 % unfolded)."""
 CREVICE_RAYS = 5
 """Rays per texel sample whose harmonic mean distance tells a crevice (deviation: crevice-records,
 core/crevice_records.py): one along the normal, the rest evenly round a cone of CREVICE_CONE degrees."""

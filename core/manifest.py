@@ -61,8 +61,8 @@ Schema (``schema_version`` 1)
     ``direct_footprint_shadow_rays`` (int, the rays those points cast). ``texels_buried`` (int,
     covered texels wholly or partly inside closed geometry, e.g. under a wall or cut by its face;
     with the buried-texels deviation on, docs/DEVIATIONS.md, they hold their whole neighbours' light).
-    ``texel_samples_folded`` (int, samples placed on their texel's centre triangle for texels a crease
-    crosses, deviation crease-folding), ``texel_samples_past_edges`` (int, the same for texels at a chart's
+    ``texel_samples_folded`` (int, samples placed on their texel's centre triangle for texels a triangle
+    edge crosses, deviation crease-folding), ``texel_samples_past_edges`` (int, the same for texels at a chart's
     edge, deviation edge-folding).
     Texel validity: ``texel_samples_inside_geometry`` (int, samples given no indirect light),
     of them ``texel_samples_covered`` (int, samples under a sheet nearer than a tenth of a texel,

@@ -178,14 +178,18 @@ def rasterize(uv: np.ndarray, width: int, height: int, samples_per_axis: int = 2
 
 
 def _sorted_samples(texel, tri, bary, conservative, centre_inside, centre_triangle, width, height,
-                    past_edges: int = 0) -> TexelSamples:
+                    past_edges: int = 0, share: np.ndarray | None = None) -> TexelSamples:
     """A :class:`TexelSamples` of unordered samples: sorted by texel (then triangle), each texel's weights
-    1 / its samples."""
+    1 / its samples, or with ``share`` (s,) each sample's share over its texel's sum of them."""
     order = _texel_order(texel, tri)
     texel, tri, bary, conservative = texel[order], tri[order], bary[order], conservative[order]
     counts = np.bincount(texel, minlength=width * height)
     held = counts[counts > 0]
-    weight = np.repeat((1.0 / held).astype(np.float32), held)  # texels ascend: each texel's run of samples
+    if share is None:
+        weight = np.repeat((1.0 / held).astype(np.float32), held)  # texels ascend: each texel's run of samples
+    else:
+        share = np.asarray(share, np.float64)[order]
+        weight = (share / np.bincount(texel, weights=share, minlength=width * height)[texel]).astype(np.float32)
     return TexelSamples(texel, tri, bary, weight, conservative, (counts > 0).reshape(height, width),
                         centre_inside, centre_triangle, width, height, past_edges)
 
@@ -199,8 +203,9 @@ def with_centre_footprints(samples: TexelSamples, uv: np.ndarray, texels: np.nda
         return samples, 0
     width, height = samples.width, samples.height
     p_texel = np.asarray(uv, np.float64) * [width, height]
-    f_texel, f_tri, f_bary = centre_footprints(p_texel, width, texels,
-                                               samples.centre_triangle.reshape(-1)[texels].astype(np.int64), side)
+    f_texel, f_tri, f_bary, f_share = centre_footprints(p_texel, width, texels,
+                                                        samples.centre_triangle.reshape(-1)[texels].astype(np.int64),
+                                                        side)
     replaced = np.zeros(width * height, bool)
     replaced[texels] = True
     keep = ~replaced[samples.texel]
@@ -209,20 +214,23 @@ def with_centre_footprints(samples: TexelSamples, uv: np.ndarray, texels: np.nda
                            np.concatenate([samples.barycentric[keep], f_bary]),
                            np.concatenate([samples.conservative[keep], np.zeros(len(f_texel), bool)]),
                            samples.centre_inside, samples.centre_triangle, width, height,
-                           samples.past_edges), len(f_texel)
+                           samples.past_edges, np.concatenate([samples.weight[keep], f_share])), len(f_texel)
 
 
 def centre_footprints(p_texel: np.ndarray, width: int, texels: np.ndarray, centre_tri: np.ndarray, side: float,
-                      per_axis: int = CENTRE_FOOTPRINT_PER_AXIS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(texel (f,), triangle (f,), barycentric (f, 3)): texels sampled as Cycles' bake samples them, on the
-    triangle under their centre only.
+                      per_axis: int = CENTRE_FOOTPRINT_PER_AXIS) -> tuple[np.ndarray, ...]:
+    """(texel (f,), triangle (f,), barycentric (f, 3), share (f,)): texels sampled as Cycles' bake samples
+    them, on the triangle under their centre only.
 
     Cycles jitters a texel's bake samples over the square of ``side`` texels centred on it and keeps them on
     that triangle (a 10.8 m x 1.5 cm strip charted one texel wide: Cycles 5.0.1's Diffuse Direct within 0.3 %
     of the jitter restricted to the triangle and 22x off from the barycentric mirror of Blender 3's bake kernel,
     tests/test_folding.py). Here the jitter's ``per_axis`` x ``per_axis`` strata centres over
     that square stand for it, those on the triangle; a texel none of whose strata lie on it (a sliver
-    narrower than a stratum) gets its centre, which does.
+    narrower than a stratum) gets its centre, which does. A stratum centre on the triangle's edge stands for
+    a stratum the edge halves: its share is 1/2 (xatlas puts chart corners on texel centres, so a chart's
+    diagonal runs through a texel's diagonal strata: counted whole, they pulled the mean of the texel's half
+    towards the edge).
 
     p_texel : (t, 3, 2) the UV triangles in texel units; texels : (k,) flat texel indices; centre_tri : (k,)
     the triangle (indexing ``p_texel``) under each one's centre.
@@ -234,10 +242,11 @@ def centre_footprints(p_texel: np.ndarray, width: int, texels: np.ndarray, centr
 
 
 def on_centre_triangles(p_texel: np.ndarray, width: int, texels: np.ndarray, centre_tri: np.ndarray,
-                        offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(texel (f,), triangle (f,), barycentric (f, 3)): the points at each texel's centre plus ``offsets``
-    ((m, 2) for all texels, or (k, m, 2), texel units) that lie on its centre triangle ``centre_tri`` (k,),
-    as Cycles keeps its bake jitter there; a texel none of whose points do gets its centre, which does.
+                        offsets: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(texel (f,), triangle (f,), barycentric (f, 3), share (f,)): the points at each texel's centre plus
+    ``offsets`` ((m, 2) for all texels, or (k, m, 2), texel units) that lie on its centre triangle
+    ``centre_tri`` (k,), as Cycles keeps its bake jitter there; a texel none of whose points do gets its
+    centre, which does. ``share``: 1/2 for a point on the triangle's edge, 1 inside.
     p_texel : (t, 3, 2) the UV triangles in texel units; texels : (k,) flat texel indices."""
     k = len(texels)
     centre = np.stack([texels % width + 0.5, texels // width + 0.5], axis=1)
@@ -251,8 +260,9 @@ def on_centre_triangles(p_texel: np.ndarray, width: int, texels: np.ndarray, cen
     on = (bary >= -INSIDE_EPS).all(axis=1).reshape(k, m)
     on[:, -1] = ~on[:, :-1].any(axis=1)  # the centre only where no other point lies on the triangle
     on = on.ravel()
+    share = np.where(bary[on].min(axis=1) <= INSIDE_EPS, 0.5, 1.0)
     bary = np.clip(bary[on], 0.0, None)
-    return texel[on], tri[on], bary / bary.sum(axis=1, keepdims=True)
+    return texel[on], tri[on], bary / bary.sum(axis=1, keepdims=True), share
 
 
 # --------------------------------------------------------------------------- batching

@@ -115,8 +115,8 @@ class Deviations:
     """Texel samples under a face lying over theirs nearer than the rays' offset (a decal 80 um over its wall)
     get no light, as in Cycles (core/contact.py ``under_sheet``). Off: they are lit from beyond the sheet."""
     crease_folding: bool = True
-    """A texel with a sample across a crease (a geometric normal turning more than CREASE_FOLD_ANGLE) from the
-    triangle under its centre is sampled on that triangle alone, over the square Cycles jitters its bake
+    """A texel with a sample on another triangle than the one under its centre (across a crease, or an edge
+    between coplanar triangles) is sampled on that triangle alone, over the square Cycles jitters its bake
     samples in, as Cycles bakes it (core/crease_folding.py, core/raster.py:centre_footprints)."""
     edge_folding: bool = True
     """So is a texel whose centre lies on a triangle but misses a sub-sample (past the chart's edge), instead of

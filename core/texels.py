@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .constants import DIRECT_FOOTPRINT_SIDE
-from .crease_folding import across_creases, crease_texels
+from .crease_folding import off_centre_triangle, straddling_texels
 from .executor import TEXEL_CHUNK, slices
 from .raster import footprint_points, on_centre_triangles, rasterize, with_centre_footprints
 from .scene import Scene
@@ -114,7 +114,7 @@ class TargetRaster:
     """Per-target rasterisation bookkeeping: image size, coverage and Cycles' centre mask;
     ``centre_triangle``: (width * height,) the triangle under each texel's centre, -1 none (indexing the
     target's triangles of nonzero area, as :func:`footprint_texel_points` does); ``folded``: samples placed on
-    it for texels a crease crosses (deviation: crease-folding); ``past_edges``: the same for texels at a
+    it for texels a triangle edge crosses (deviation: crease-folding); ``past_edges``: the same for texels at a
     chart's edge (deviation: edge-folding)."""
 
     width: int
@@ -135,8 +135,8 @@ def lift_texels(scene: Scene, samples_per_axis: int, map=map, crease_folding: bo
     Degenerate (zero-area) triangles are dropped here: they hold no surface to light.
     map : runs batches of triangles and of samples (an executor's ``map`` spreads them over
         threads; the points are the same).
-    crease_folding : a texel with a sample across a crease from its centre triangle is sampled on that
-        triangle (deviation: crease-folding, :func:`core.raster.centre_footprints`).
+    crease_folding : a texel with a sample off its centre triangle is sampled on that triangle (deviation:
+        crease-folding, :func:`core.raster.centre_footprints`).
     edge_folding : so is a texel at a chart's edge (deviation: edge-folding, :func:`core.raster.rasterize`).
     footprint_side : the width (texels) of the square Cycles jitters a texel's bake samples in.
     """
@@ -152,8 +152,8 @@ def lift_texels(scene: Scene, samples_per_axis: int, map=map, crease_folding: bo
         centre = samples.centre_triangle.reshape(-1)
         folded = 0
         if crease_folding:
-            creased = crease_texels(samples.texel, samples.triangle, centre, face_n[target.triangles[local]])
-            samples, folded = with_centre_footprints(samples, uv, creased, footprint_side)
+            straddling = straddling_texels(samples.texel, samples.triangle, centre)
+            samples, folded = with_centre_footprints(samples, uv, straddling, footprint_side)
         tri_local, b = samples.triangle, samples.barycentric  # b: weights of corners 0, 1, 2
         tri = target.triangles[local[tri_local]]
         count = len(tri)
@@ -192,9 +192,9 @@ def footprint_texel_points(scene: Scene, target_index: int, texels: np.ndarray, 
     per_axis : strata per texel axis (typical 8).
     rng : the jitter's random stream.
     side : footprint width in texels, centred on the texel (:func:`core.raster.footprint_points`).
-    centre_triangle : the target's :attr:`TargetRaster.centre_triangle`, or None: given, points across a
-        crease from the triangle under their texel's centre are dropped, as Cycles' jitter stays on that
-        triangle; a texel left with none gets its centre (deviation: crease-folding).
+    centre_triangle : the target's :attr:`TargetRaster.centre_triangle`, or None: given, points off the
+        triangle under their texel's centre are dropped, as Cycles' jitter stays on that triangle; a texel
+        left with none gets its centre (deviation: crease-folding).
     """
     geometry = scene.geometry
     face_n = geometry.face_normals()
@@ -203,8 +203,8 @@ def footprint_texel_points(scene: Scene, target_index: int, texels: np.ndarray, 
     uv = target.lightmap_uv[local]
     texel, tri_local, b = footprint_points(uv, target.width, target.height, texels, per_axis, rng, side)
     if centre_triangle is not None and len(texel):
-        texel, tri_local, b = _off_creases(texel, tri_local, b, centre_triangle, uv, face_n[target.triangles[local]],
-                                           target.width, target.height)
+        texel, tri_local, b = _on_centre_triangle(texel, tri_local, b, centre_triangle, uv, target.width,
+                                                  target.height)
     tri = target.triangles[local[tri_local]]
     p, n_s, n_g = on_surface(geometry, face_n, tri, b)
     counts = np.bincount(texel, minlength=target.width * target.height)
@@ -212,16 +212,16 @@ def footprint_texel_points(scene: Scene, target_index: int, texels: np.ndarray, 
     return TexelPoints(p, n_s, n_g, tri, b[:, 1:3].copy(), np.full(len(tri), target_index, np.int32), texel, weight)
 
 
-def _off_creases(texel, tri, b, centre_triangle, uv, normals, width, height):
-    """Footprint points (texel, triangle, barycentric) without those across a crease from their texel's centre
-    triangle; a texel that loses them all gets its centre (:func:`core.raster.on_centre_triangles`)."""
-    across = across_creases(texel, tri, centre_triangle, normals)
+def _on_centre_triangle(texel, tri, b, centre_triangle, uv, width, height):
+    """Footprint points (texel, triangle, barycentric) without those off their texel's centre triangle; a
+    texel that loses them all gets its centre (:func:`core.raster.on_centre_triangles`)."""
+    across = off_centre_triangle(texel, tri, centre_triangle)
     if not across.any():
         return texel, tri, b
     emptied = np.setdiff1d(texel[across], texel[~across])
     p_texel = np.asarray(uv, np.float64) * [width, height]
-    c_texel, c_tri, c_b = on_centre_triangles(p_texel, width, emptied, centre_triangle[emptied].astype(np.int64),
-                                              np.zeros((0, 2)))
+    c_texel, c_tri, c_b, _ = on_centre_triangles(p_texel, width, emptied, centre_triangle[emptied].astype(np.int64),
+                                                 np.zeros((0, 2)))
     texel, tri, b = (np.concatenate([a[~across], c]) for a, c in ((texel, c_texel), (tri, c_tri), (b, c_b)))
     order = np.argsort(texel, kind="stable")
     return texel[order], tri[order], b[order]

@@ -256,7 +256,7 @@ def indirect_weights(scene, caster, density, target_index: int, points, inside: 
     (:func:`texel_validity`, chunked over ``executor``, one thread if None); ``cover``: as
     :func:`inside_geometry`'s, points that near under a surface count as inside; ``contact``: as
     :func:`sample_validity`'s, points on a touching face count as inside; ``centre_triangle``: the target's
-    :attr:`core.texels.TargetRaster.centre_triangle`, which the jittered points across a crease fold onto
+    :attr:`core.texels.TargetRaster.centre_triangle`, off which the jittered points are dropped
     (deviation: crease-folding), or None.
     """
     w = points.weight.astype(np.float64)

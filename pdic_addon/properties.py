@@ -142,7 +142,6 @@ def to_settings(props, quality: str | None = None, **overrides) -> core_settings
         direct=bool(props.direct), indirect=bool(props.indirect), seed=int(props.seed),
         texel_density=float(props.texel_density), default_resolution=int(props.default_resolution),
         direct_footprint_side=cycles_footprint_side(bpy.app.version),
-        deviations=replace(base.deviations, edge_folding=cycles_folds_past_edges(bpy.app.version)),
     )
     if quality == "CUSTOM":
         fields.update({name: getattr(props, name) for name in PRESET_FIELDS})
@@ -154,14 +153,6 @@ def to_settings(props, quality: str | None = None, **overrides) -> core_settings
 def cycles_footprint_side(version: tuple) -> float:
     """Width (texels) of the square this Blender's Cycles bake averages a texel over (0.5 before 5.2)."""
     return 1.0 if tuple(version) >= CYCLES_WHOLE_TEXEL_FOOTPRINT else 0.5
-
-
-def cycles_folds_past_edges(version: tuple) -> bool:
-    """Should texels at a chart's edge be sampled on the triangle under their centre over Cycles' half-texel
-    jitter (before 5.2), rather than by their samples on the chart (5.2, whose jitter spans the whole
-    texel)? Measured on chart edges through outer texels and along a one-texel sliver (tests/test_folding.py):
-    the deviation edge-folding follows it."""
-    return tuple(version) < CYCLES_WHOLE_TEXEL_FOOTPRINT
 
 
 classes = (PDIC_SceneSettings, PDIC_ObjectSettings)

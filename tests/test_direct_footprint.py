@@ -68,7 +68,9 @@ def _area_centroid(poly: np.ndarray) -> tuple[float, np.ndarray]:
 
 def exact_texels(side: float = DIRECT_FOOTPRINT_SIDE) -> tuple[np.ndarray, np.ndarray]:
     """(RES, RES) exact E / pi averaged over each texel's centred footprint of ``side`` texels, and
-    (RES, RES) that footprint's lit fraction (rows = y)."""
+    (RES, RES) that footprint's lit fraction (rows = y). On the floor's diagonal, the edge between its two
+    triangles through the texel centres, the footprint is the part on the triangle under Blender's scan
+    point (y > x), as Cycles keeps its jitter there (docs/DEVIATIONS.md, crease-folding)."""
     value = np.zeros((RES, RES))
     fraction = np.zeros((RES, RES))
     h = 1.0 / RES
@@ -76,8 +78,10 @@ def exact_texels(side: float = DIRECT_FOOTPRINT_SIDE) -> tuple[np.ndarray, np.nd
     for j in range(RES):
         for i in range(RES):
             square = (np.array([[-q, -q], [q, -q], [q, q], [-q, q]]) + [i + 0.5, j + 0.5]) * h
+            if i == j:
+                square = _clip(square, np.array([-1.0, 1.0]), 0.0)
             area, c = _area_centroid(_clip(square, A, EDGE_T))
-            fraction[j, i] = area / (side * h) ** 2
+            fraction[j, i] = area / _area_centroid(square)[0]
             if area > 0:
                 d = LIGHT - np.array([c[0], c[1], 0.0])
                 r2 = d @ d
@@ -107,8 +111,10 @@ def test_hard_shadow_edge_texels_hold_their_lit_fraction(texel_samples, side):
     assert err[edge].max() < 0.08, f"worst edge texel off by {err[edge].max():.3f} of a lit texel"
     assert np.sqrt((err[edge] ** 2).mean()) < 0.025
     assert err[~edge].max() < 0.01  # away from the edge the footprint changes nothing that matters
-    # the extra points go to the edge only: a few texels either side of it, not the map
-    assert edge.sum() <= counters["direct_footprint_texels"] < 0.2 * RES * RES
+    # the extra points go to the edge only: a few texels either side of it, not the map (a texel the edge only
+    # grazes, lit or shadowed over all but 1 % of its footprint, may keep its samples)
+    clear = (fraction > 0.01) & (fraction < 0.99)
+    assert clear.sum() <= counters["direct_footprint_texels"] < 0.2 * RES * RES
     assert counters["direct_footprint_shadow_rays"] > 0
 
 
