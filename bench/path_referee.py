@@ -163,7 +163,7 @@ def cycles_footprint(scene, target_index: int, texels: np.ndarray, per_axis: int
     strata = np.stack(np.meshgrid(np.arange(m), np.arange(m), indexing="xy"), axis=-1).reshape(-1, 2)
     jitter = 0.5 * (strata[None] + rng.random((len(texels), m * m, 2))) / m - 0.25  # the centred half texel
     uv = target.lightmap_uv[local].astype(np.float64) * [target.width, target.height]
-    texel, tri, b = on_centre_triangles(uv, target.width, texels, centre_triangle.reshape(-1)[texels], jitter)
+    texel, tri, b, _ = on_centre_triangles(uv, target.width, texels, centre_triangle.reshape(-1)[texels], jitter)
     p, n, n_g = on_surface(g, g.face_normals(), target.triangles[local[tri]], b)
     return (texel, p, n) + ((n_g,) if geometric else ())
 

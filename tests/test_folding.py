@@ -153,12 +153,16 @@ FLOOR_LIGHT = np.array([0.45, 0.55, 0.08])
 texel there."""
 
 
-def _diagonal_direct(bpy, folding: bool) -> np.ndarray:
+def _diagonal_floor() -> Scene:
+    """A 1 m floor of two triangles, its diagonal from (0, 0) to (1, 1), lit by a lamp at FLOOR_LIGHT."""
+    return quad_scene([quad(np.zeros(3), [1, 0, 0], [0, 1, 0])], {"floor": (0, RES)},
+                      [PointLight("lamp", FLOOR_LIGHT, np.full(3, POWER))])
+
+
+def _diagonal_direct(bpy, flat: Scene, folding: bool) -> np.ndarray:
     """The floor's direct light with the footprint the add-on sets for the running Blender."""
     from pdic.pdic_addon.properties import cycles_footprint_side
 
-    flat = quad_scene([quad(np.zeros(3), [1, 0, 0], [0, 1, 0])], {"floor": (0, RES)},
-                      [PointLight("lamp", FLOOR_LIGHT, np.full(3, POWER))])
     result = bake(flat, replace(DIRECT, direct_footprint_side=cycles_footprint_side(bpy.app.version),
                                 deviations=replace(Deviations(), crease_folding=folding)))
     return result.lightmaps["floor"][..., 0]
@@ -169,15 +173,15 @@ def test_texels_on_an_edge_between_coplanar_triangles_hold_the_light_cycles_bake
     edge between its two triangles: Cycles keeps their jitter on the triangle under the scan point, a
     triangle-shaped half of the square, whose samples' mean lies a sixth of the square off the centre. Folded,
     PDIC's texels are within 4 % of Cycles' (Blender 5.0.1: 1.1 % on average, 2.5 % at worst; 5.2.3: 1.9 and
-    3.4 %), against 3.9 and 12 % on average left on both
-    triangles, up to 11 % (5.0.1) and 26 % (5.2.3) off. Each stratum centre on the edge counts half
-    (core/raster.py:on_centre_triangles): counted whole, the texel nearest the light was 4.8 % off (5.0.1)."""
+    3.4 %); left on both triangles 3.9 and 12 % on average, 11 and 26 % at worst. Each stratum centre on the
+    edge counts half (core/raster.py:on_centre_triangles): counted whole, the texel nearest the light was
+    4.8 % off (5.0.1)."""
     bpy = blender
-    flat = quad_scene([quad(np.zeros(3), [1, 0, 0], [0, 1, 0])], {"floor": (0, RES)}, [])
+    flat = _diagonal_floor()
     tris = flat.geometry.positions.reshape(-1, 3, 3) + flat.origin_world
     C = _cycles_direct(bpy, "Floor", tris, flat.targets[0].lightmap_uv, FLOOR_LIGHT, RES, 256)
     inner = np.arange(1, RES - 1)
-    off = {on: np.abs(_diagonal_direct(bpy, on)[inner, inner] / C[inner, inner] - 1) for on in (True, False)}
+    off = {on: np.abs(_diagonal_direct(bpy, flat, on)[inner, inner] / C[inner, inner] - 1) for on in (True, False)}
     assert off[True].mean() < 0.02 and off[True].max() < 0.04, (bpy.app.version, off[True])
     assert off[True].mean() < 0.5 * off[False].mean() and off[False].max() > 0.1, (bpy.app.version, off[False])
 
