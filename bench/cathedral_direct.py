@@ -183,13 +183,14 @@ def main(argv=None):
           f"flat off > 90 %: {(rel[flat] > 0.9).sum()}; sum|P-C|/sumC flat "
           f"{np.abs(P - C)[flat].sum() / C[flat].sum():.4f}, baked {np.abs(P - C)[baked].sum() / C[baked].sum():.4f}")
 
-    rel2 = np.abs(second.mean(axis=2) - lc) / np.maximum(lc, DARK)
-    both = (lc + second.mean(axis=2)) / 2  # the two seeds' mean
+    lc2 = second.mean(axis=2)
+    rel2 = np.abs(lc2 - lc) / np.maximum(lc, DARK)
+    both = (lc + lc2) / 2  # the two seeds' mean
     lit = baked & (both > LIT)
     print(f"lit texels (the seeds' mean E/pi > {LIT}): {int(lit.sum())}; PDIC against the seeds' mean: mean "
           f"|P/C - 1| {np.mean(np.abs(lp[lit] / both[lit] - 1)):.2%}, relative RMS "
           f"{np.sqrt(np.sum((lp - both)[lit] ** 2) / np.sum(both[lit] ** 2)):.2%}; the seeds' half-difference "
-          f"{np.mean(np.abs(second.mean(axis=2) - lc)[lit] / 2 / both[lit]):.2%}")
+          f"{np.mean(np.abs(lc2 - lc)[lit] / 2 / both[lit]):.2%}")
     print(f"Cycles seed 0 vs seed 1 within {WITHIN:.0%}: flat {((rel2 <= WITHIN) | (lc <= DARK))[flat].mean():.2%}; "
           f"noise sum|C1-C0|/sumC/sqrt2 flat {np.abs(second - C)[flat].sum() / C[flat].sum() / np.sqrt(2):.4f}")
     wrong_flat = flat & ~ok

@@ -147,3 +147,13 @@ def box_on_ground(res: int = 16):
              quad(np.array([-1.5, 1.5, 0.0]), X, Z), quad(np.array([-0.5, 1.5, 0.0]), -X, Z)]  # 7, 8 the sheet
     targets = {"ground": (0, res), "bottom": (1, res), "top": (2, res), "sheet_front": (7, res), "sheet_back": (8, res)}
     return replace(quad_scene(faces, targets, []), world=World(np.full(3, 1.0)))
+
+
+def bake_samples(scene: Scene, texel_samples: int = 2):
+    """The texel samples (:class:`core.texels.TexelPoints`) a bake at default deviations places in ``scene``:
+    ``texel_samples``^2 per texel, more where an edge between triangles or a chart's edge crosses a texel
+    (folded onto the centre triangle, docs/DEVIATIONS.md crease-folding and edge-folding)."""
+    from pdic.core import texels
+
+    points, _ = texels.lift_texels(scene, texel_samples, crease_folding=True, edge_folding=True)
+    return points

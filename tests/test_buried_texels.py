@@ -14,9 +14,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pdic.core import pipeline, texels
+from pdic.core import pipeline
 from pdic.core.settings import Deviations, preset
 
+from scenes import bake_samples
 from test_straddling_texels import COLUMN, RES, TEXEL, _scene
 
 ROW = RES // 2
@@ -78,7 +79,7 @@ def test_a_bake_without_indirect_light_buries_them_too():
     # The cut column's inside samples and the RINGS - 1 columns past it: 2 and 4 per texel, more where the
     # floor's diagonal crosses them (folded onto the centre triangle, docs/DEVIATIONS.md crease-folding).
     scene = _scene(wall_x)
-    points, _ = texels.lift_texels(scene, 2, crease_folding=True, edge_folding=True)
+    points = bake_samples(scene)
     floor = [t.name for t in scene.targets].index("Floor")
     column = points.texel % RES
     under = (points.target == floor) & (column >= COLUMN) & (column < COLUMN + RINGS)

@@ -7,14 +7,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from pdic.core import texels
 from pdic.core.contact import ContactFaces, touching_planes
 from pdic.core.pipeline import bake
 from pdic.core.rays import RayCaster
 from pdic.core.scene import World
 from pdic.core.settings import Deviations, preset
 
-from scenes import box_on_ground, quad, quad_scene
+from scenes import bake_samples, box_on_ground, quad, quad_scene
 
 FINAL = preset("FINAL", threads=2)
 X, Y, Z = (np.eye(3)[i] for i in range(3))
@@ -32,7 +31,7 @@ def test_a_box_bottom_on_the_ground_gets_no_light_and_a_two_sided_sheet_keeps_bo
     on = bake(scene, FINAL)
     off = bake(scene, replace(FINAL, deviations=Deviations(contact_faces=False, under_sheets=False)))
     inside = on.centre_inside["bottom"]
-    points, _ = texels.lift_texels(scene, 2, crease_folding=True, edge_folding=True)
+    points = bake_samples(scene)
     bottom = points.target == [t.name for t in scene.targets].index("bottom")
     assert on.stats["counters"]["texel_samples_in_contact"] == bottom.sum() >= 4 * inside.sum()  # the bottom's alone
     assert off.stats["counters"]["texel_samples_in_contact"] == 0 and "contact_rays" not in off.stats["counters"]

@@ -6,14 +6,13 @@ rasterised and shaded); the bench measures the time (``bench/README.md``).
 import numpy as np
 import pytest
 
-from pdic.core import texels
 from pdic.core.bake_cache import BakeCache
 from pdic.core.direct import EMISSIVE_KEY
 from pdic.core.pipeline import bake
 from pdic.core.scene import PointLight, SpotLight
 from pdic.core.settings import preset
 
-from scenes import BOX_LAMP, box_faces, lamp_box, quad, quad_scene
+from scenes import BOX_LAMP, bake_samples, box_faces, lamp_box, quad, quad_scene
 
 FLOOR, BACK, CEILING = 0, 1, 2
 _box_faces = box_faces
@@ -55,19 +54,13 @@ def test_photons_leaving_an_open_scene_stop_at_once():
 
 
 # --------------------------------------------------------------------------- targets
-def _samples(scene) -> np.ndarray:
-    """The texel samples a bake at SETTINGS places (2x2 per texel, more where an edge between triangles
-    crosses a texel, docs/DEVIATIONS.md crease-folding)."""
-    points, _ = texels.lift_texels(scene, SETTINGS.texel_samples, crease_folding=True, edge_folding=True)
-    return points
-
-
 def test_objects_not_baked_are_not_rasterised():
     floor_only = _scene(_box_faces(), {"floor": (FLOOR, 8)}, [BOX_LAMP])
     one = bake(floor_only, SETTINGS)
     two = bake(_scene(_box_faces(), {"floor": (FLOOR, 8), "back": (BACK, 8)}, [BOX_LAMP]), SETTINGS)
     assert _counters(one)["targets_rasterised"] == 1 and _counters(two)["targets_rasterised"] == 2
-    assert _counters(one)["texel_samples"] == len(_samples(floor_only).p) >= 8 * 8 * 4  # only the floor's
+    floor_samples = len(bake_samples(floor_only, SETTINGS.texel_samples).p)
+    assert _counters(one)["texel_samples"] == floor_samples >= 8 * 8 * 4  # only the floor's
     assert list(one.lightmaps) == ["floor"]
 
 
@@ -102,7 +95,7 @@ def test_texels_a_light_cannot_reach_cast_no_shadow_rays_for_it():
     settings = preset("PREVIEW", photons=1000, max_bounces=2, threads=1, indirect=False)
     result = bake(scene, settings)
     c = _counters(result)
-    points = _samples(scene)
+    points = bake_samples(scene, settings.texel_samples)
     on_floor = points.target == 0
     floor_samples, lid_samples = int(on_floor.sum()), int((~on_floor).sum())
     # Sample points of the floor inside the cone (positions in [0, 1]^2).
