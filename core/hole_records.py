@@ -1,7 +1,7 @@
 """Indirect light at texel samples: Equation 3 over the cache, with hole records (section 3.4).
 
-Samples no record accepts first try the zones widened by GAP_TEXELS texels (deviation: gap-fill);
-samples still uncovered, and in the first round samples whose records' weights sum below
+Samples no record accepts first try, where hole records are estimated from photons (Preview, photon-path
+reuse), the zones widened by GAP_TEXELS texels (deviation: gap-fill); samples still uncovered, and in the first round samples whose records' weights sum below
 THIN_COVERAGE / a (deviation: thin-coverage), get new records placed on them (Algorithm 1's hole
 entry point, :func:`~core.irradiance_cache.cache_for_holes`), refined like pass 3's records at Final
 quality; HOLE_ROUNDS rounds of that (deviation: hole-rounds), then the nearest record's
@@ -212,7 +212,7 @@ def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | N
     """:func:`interpolate_filling_holes`, with the weights and smallest zones at every point.
 
     texel_size : world size of one texel; points no zone accepts first try zones widened by
-    GAP_TEXELS of it (deviation: gap-fill; 0 skips that).
+    GAP_TEXELS of it, unless hole records gather (deviation: gap-fill; 0 skips that).
     sky : the world's radiance (3,): interpolate the records' gathered sky too (E (m, 6),
         :attr:`core.interpolation.CacheLookup.sky`); Preview's hole records gather it (:func:`_hole_records`).
     Equation 3 runs once over all points and, after each round of hole records, again at the
@@ -228,9 +228,14 @@ def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | N
 
     E, w, smallest = lookup(cache, slice(None))
     hole_records, counters = 0, {}
+    gathered = _gathers_hole_records(settings)
     # deviation: thin-coverage, docs/DEVIATIONS.md: Final's hole records, gathered by standard gathering
     # (refined by photon-path reuse they read their zones' few photons: the Cornell box 6.6 -> 7.5 %)
-    thin_coverage = settings.deviations.thin_coverage and settings.refine and not settings.reuse_photon_paths
+    thin_coverage = settings.deviations.thin_coverage and gathered
+    # deviation: gap-fill, docs/DEVIATIONS.md: where hole records are estimated from photons. A hole record
+    # gathered at the sample beats a refined record read past its zone, where gaps open (near other
+    # surfaces) and the light changes fastest.
+    gap_fill = settings.deviations.gap_fill and texel_size > 0 and not gathered
     for round_ in range(settings.deviations.hole_rounds):  # deviation: hole-rounds, docs/DEVIATIONS.md
         holes = np.flatnonzero(w <= 0)
         thin = np.zeros(0, np.int64)
@@ -240,7 +245,7 @@ def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | N
         if len(holes) == 0 and len(thin) == 0:
             break
         progress.check()
-        if settings.deviations.gap_fill and texel_size > 0:  # deviation: gap-fill, docs/DEVIATIONS.md
+        if gap_fill:
             E_g, w_g, z_g = lookup(cache, holes, caster=caster, margin=GAP_TEXELS * texel_size)
             gap = w_g > 0
             E[holes[gap]], w[holes[gap]], smallest[holes[gap]] = E_g[gap], w_g[gap], z_g[gap]
@@ -275,12 +280,18 @@ def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | N
     return FilledLookup(E, w, smallest, cache, hole_records, len(unfilled), counters)
 
 
+def _gathers_hole_records(settings: BakeSettings) -> bool:
+    """Whether hole records get their E_k from gathering at their own points (Final, standard gathering)
+    rather than from the photons around them (Preview; Final's photon-path reuse reads the zone's photons)."""
+    return settings.refine and not settings.reuse_photon_paths
+
+
 def _hole_records(scene, caster, density, sources, cache, cand_p, cand_n, params, settings, executor, progress,
                   round_: int, sky: np.ndarray | None = None) -> tuple[IrradianceCache, dict]:
     """One round of section 3.4: Algorithm 1 over the uncovered samples, refined at Final quality (and
     at Preview given ``sky``, gathering the sky, :func:`core.sky_gathering.gather_sky`); and the counters."""
     # Refined by standard gathering, a hole record's E_k comes from its rays alone: no density estimate.
-    estimate = not settings.refine or settings.reuse_photon_paths
+    estimate = not _gathers_hole_records(settings)
     new, zones, _ = cache_for_holes(density, cand_p, cand_n, params,
                                     np.random.default_rng([settings.seed, STREAM_HOLE_ORDER, round_]),
                                     existing=cache, caster=caster, estimate=estimate)

@@ -87,7 +87,8 @@ class Deviations:
     """Rounds of hole records (section 3.4); the paper places them once."""
     gap_fill: bool = True
     """Texel samples no record accepts take Equation 3 over zones widened by GAP_TEXELS texels (walls and
-    visibility checked past a zone) before any hole record is placed."""
+    visibility checked past a zone) before any hole record is placed; where hole records are estimated
+    from photons only (Preview, photon-path reuse): Final's standard gathering gathers one instead."""
     thin_coverage: bool = True
     """Texel samples whose accepted records' weights sum below THIN_COVERAGE / a get hole records too (first
     round), as samples no record accepts do; Final with standard gathering only."""

@@ -75,7 +75,7 @@ def test_without_thinning_every_zone_photon_lends_a_virtual_ray():
 
 @pytest.mark.parametrize("switch, reuse", [("harmonic_cell_radiance", True), ("gradient_limiting", False),
                                            ("neighbour_clamp", False), ("nearest_photon_fallback", False),
-                                           ("fine_zones", False), ("gap_fill", False), ("leave_one_out", False),
+                                           ("fine_zones", False), ("gap_fill", True), ("leave_one_out", False),
                                            ("surface_coverage", False), ("gathered_radius", False),
                                            ("corner_gathering", False)])
 def test_switching_a_deviation_off_changes_the_bake_and_keeps_it_finite(default, reused, switch, reuse):
