@@ -1,11 +1,12 @@
 """Indirect light at texel samples: Equation 3 over the cache, with hole records (section 3.4).
 
 Samples no record accepts first try, where hole records are estimated from photons (Preview, photon-path
-reuse), the zones widened by GAP_TEXELS texels (deviation: gap-fill); samples still uncovered, and in the first round samples whose records' weights sum below
-THIN_COVERAGE / a (deviation: thin-coverage), get new records placed on them (Algorithm 1's hole
-entry point, :func:`~core.irradiance_cache.cache_for_holes`), refined like pass 3's records at Final
-quality; HOLE_ROUNDS rounds of that (deviation: hole-rounds), then the nearest record's
-irradiance for what is still uncovered (deviation: nearest-record-fallback). A record off a
+reuse), the zones widened by GAP_TEXELS texels (deviation: gap-fill); samples still uncovered, and in
+the first round samples whose records' weights sum below THIN_COVERAGE / a (deviation: thin-coverage),
+get new records placed on them (Algorithm 1's hole entry point,
+:func:`~core.irradiance_cache.cache_for_holes`), refined like pass 3's records at Final quality;
+HOLE_ROUNDS rounds of that (deviation: hole-rounds), then the nearest record's irradiance for what
+is still uncovered (deviation: nearest-record-fallback). A record off a
 sample's tangent plane counts only if it sees the sample, in every lookup and in the fallback
 (deviation: record-visibility). At Final, samples in crevices gather records of their own
 instead of all of this (deviation: crevice-records, :mod:`core.crevice_records`).
