@@ -215,14 +215,14 @@ def footprint_texel_points(scene: Scene, target_index: int, texels: np.ndarray, 
 def _on_centre_triangle(texel, tri, b, centre_triangle, uv, width, height):
     """Footprint points (texel, triangle, barycentric) without those off their texel's centre triangle; a
     texel that loses them all gets its centre (:func:`core.raster.on_centre_triangles`)."""
-    across = off_centre_triangle(texel, tri, centre_triangle)
-    if not across.any():
+    off = off_centre_triangle(texel, tri, centre_triangle)
+    if not off.any():
         return texel, tri, b
-    emptied = np.setdiff1d(texel[across], texel[~across])
+    emptied = np.setdiff1d(texel[off], texel[~off])
     p_texel = np.asarray(uv, np.float64) * [width, height]
     c_texel, c_tri, c_b, _ = on_centre_triangles(p_texel, width, emptied, centre_triangle[emptied].astype(np.int64),
                                                  np.zeros((0, 2)))
-    texel, tri, b = (np.concatenate([a[~across], c]) for a, c in ((texel, c_texel), (tri, c_tri), (b, c_b)))
+    texel, tri, b = (np.concatenate([a[~off], c]) for a, c in ((texel, c_texel), (tri, c_tri), (b, c_b)))
     order = np.argsort(texel, kind="stable")
     return texel[order], tri[order], b[order]
 
