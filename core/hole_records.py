@@ -30,6 +30,7 @@ from .refinement import GatherSources, refine_records
 from .settings import BakeSettings
 from .sky_gathering import gather_sky
 from .validity import sample_validity
+from .zone_grid import SharedZones
 
 
 @dataclass(frozen=True)
@@ -70,7 +71,8 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
                        cache: IrradianceCache, target_index: int, points, texel_size: float, stream: int,
                        params: CacheParameters, settings: BakeSettings, executor: Executor, progress: Progress,
                        stats, sky: np.ndarray | None = None, contact=None, centre_triangle: np.ndarray | None = None,
-                       verdicts: TexelVerdicts | None = None) -> tuple[np.ndarray, IrradianceCache, np.ndarray]:
+                       verdicts: TexelVerdicts | None = None, shared: SharedZones | None = None
+                       ) -> tuple[np.ndarray, IrradianceCache, np.ndarray]:
     """Texel validity, then Equation 3 with hole records for one target: (E (n, 3), its hole records,
     the samples' shares of their texels' indirect light (n,), :func:`core.validity.indirect_weights`).
 
@@ -82,6 +84,7 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
     contact : :class:`core.contact.ContactFaces` for texel validity (deviation: contact-faces), or None.
     centre_triangle : the target's :attr:`core.texels.TargetRaster.centre_triangle` for texel validity, or None.
     verdicts : the target's :func:`texel_verdicts`, computed already (beside pass 2), or None.
+    shared : the bake's zone grid over ``cache``, which every target's lookups share (:class:`SharedZones`), or None.
     """
     if density is None or len(points) == 0:  # no records: the sky stays the texels' own (3 channels)
         return np.zeros((len(points), 3)), IrradianceCache(), points.weight.astype(np.float64)
@@ -101,7 +104,7 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
             # (1.2 GB on Sponza at 2048^2) would stay resident through the hole records.
             merged, sample_to_point = points.take(valid, executor.map).per_texel()  # inside samples not averaged in
             filled = fill_holes(scene, caster, density, sources, cache, merged, params, settings, executor, progress,
-                                texel_size, sky)
+                                texel_size, sky, shared)
             E[valid] = filled.E[sample_to_point]
             fine = _fine_samples(filled.smallest, sample_to_point, texel_size, settings)
             if len(fine):
@@ -110,7 +113,7 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
                 E_fine, w_fine = interpolate(filled.cache, params.a, settings.gradients, points.p[samples],
                                              points.n_shading[samples], executor, progress,
                                              caster=_record_visibility(caster, params), sky=sky is not None,
-                                             layers=settings.refine)
+                                             layers=settings.refine, shared=shared)
                 covered = w_fine > 0
                 E[samples[covered]] = E_fine[covered]
         except BaseException:
@@ -209,13 +212,15 @@ def interpolate_filling_holes(scene, caster, density: PhotonDensity, sources: Ga
 
 def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | None, cache: IrradianceCache,
                points, params: CacheParameters, settings: BakeSettings, executor: Executor,
-               progress: Progress, texel_size: float = 0.0, sky: np.ndarray | None = None) -> FilledLookup:
+               progress: Progress, texel_size: float = 0.0, sky: np.ndarray | None = None,
+               shared: SharedZones | None = None) -> FilledLookup:
     """:func:`interpolate_filling_holes`, with the weights and smallest zones at every point.
 
     texel_size : world size of one texel; points no zone accepts first try zones widened by
     GAP_TEXELS of it, unless hole records gather (deviation: gap-fill; 0 skips that).
     sky : the world's radiance (3,): interpolate the records' gathered sky too (E (m, 6),
         :attr:`core.interpolation.CacheLookup.sky`); Preview's hole records gather it (:func:`_hole_records`).
+    shared : the bake's zone grid over ``cache`` (:class:`~core.zone_grid.SharedZones`), or None.
     Equation 3 runs once over all points and, after each round of hole records, again at the
     points that were holes, over that round's records (every older one refused those points);
     covered points keep the records they had (the smallest zones there leave hole records out).
@@ -225,7 +230,7 @@ def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | N
     def lookup(c, index, caster=seeing, margin=0.0):
         return interpolate(c, params.a, settings.gradients, points.p[index], points.n_shading[index], executor,
                            progress, with_zone=True, caster=caster, margin=margin, sky=sky is not None,
-                           layers=settings.refine)
+                           layers=settings.refine, shared=shared)
 
     E, w, smallest = lookup(cache, slice(None))
     hole_records, counters = 0, {}
@@ -256,7 +261,7 @@ def fill_holes(scene, caster, density: PhotonDensity, sources: GatherSources | N
         asked = np.concatenate([holes, thin])
         progress.begin(f"Hole records, round {round_ + 1}: placing records at {len(asked):,} texel samples")
         new, refined = _hole_records(scene, caster, density, sources, cache, points.p[asked], points.n_shading[asked],
-                                     params, settings, executor, progress, round_, sky)
+                                     params, settings, executor, progress, round_, sky, shared)
         if len(new) == 0:
             break
         progress.begin(f"Hole records, round {round_ + 1}: interpolating {len(new):,} records at texel samples")
@@ -288,14 +293,15 @@ def _gathers_hole_records(settings: BakeSettings) -> bool:
 
 
 def _hole_records(scene, caster, density, sources, cache, cand_p, cand_n, params, settings, executor, progress,
-                  round_: int, sky: np.ndarray | None = None) -> tuple[IrradianceCache, dict]:
+                  round_: int, sky: np.ndarray | None = None, shared: SharedZones | None = None
+                  ) -> tuple[IrradianceCache, dict]:
     """One round of section 3.4: Algorithm 1 over the uncovered samples, refined at Final quality (and
     at Preview given ``sky``, gathering the sky, :func:`core.sky_gathering.gather_sky`); and the counters."""
     # Refined by standard gathering, a hole record's E_k comes from its rays alone: no density estimate.
     estimate = not _gathers_hole_records(settings)
     new, zones, _ = cache_for_holes(density, cand_p, cand_n, params,
                                     np.random.default_rng([settings.seed, STREAM_HOLE_ORDER, round_]),
-                                    existing=cache, caster=caster, estimate=estimate)
+                                    existing=cache, caster=caster, estimate=estimate, shared=shared)
     counters = {}
     if settings.refine and len(new):
         progress.begin(f"Hole records, round {round_ + 1}: gathering at {len(new):,} records")

@@ -19,7 +19,7 @@ from .irradiance_cache import IrradianceCache
 from .record_walls import beyond_wall_and_reach, wall_clearance
 from .vectors import dots
 from .ward import accepted, record_estimate, ward_weight
-from .zone_grid import CELL_PER_ZONE, ZoneGrid, cell_per_zone
+from .zone_grid import CELL_PER_ZONE, SharedZones, ZoneGrid, cell_per_zone
 
 
 @dataclass
@@ -49,6 +49,9 @@ class CacheLookup:
     cell_per_zone: float = CELL_PER_ZONE
     """The zone grid's cell side in median zone radii (:func:`core.zone_grid.cell_per_zone`); the pairs
     found, and so E, do not depend on it."""
+    shared: SharedZones | None = None
+    """The bake's grid over records this cache starts with, reused instead of a grid of its own (not with a
+    margin, which widens the zones); the pairs, and so E, are the same."""
     own_zone: np.ndarray = field(init=False, repr=False)
     """(K,) a R_k, the records' zones before any gap-fill margin."""
     zone: np.ndarray = field(init=False, repr=False)
@@ -59,7 +62,10 @@ class CacheLookup:
         self.own_zone = self.a * np.asarray(self.cache.R, dtype=np.float64)
         self.zone = self.own_zone + self.margin
         self.clearance = wall_clearance(self.cache.wall)
-        self.grid = ZoneGrid(self.cache.p, self.zone, self.cell_per_zone)
+        if self.shared is not None and self.margin == 0:
+            self.grid = self.shared.grid(self.cache.p, self.zone, self.cell_per_zone)
+        else:
+            self.grid = ZoneGrid(self.cache.p, self.zone, self.cell_per_zone)
         self.values = texel_values(self.cache, self.sky)
 
     def candidates(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -187,7 +193,7 @@ def equation3_sums(m: int, p, n, at, p_k, n_k, E_k, grad_r, grad_t, zone, rows, 
 
 def interpolate(cache: IrradianceCache, a: float, gradients: bool, p: np.ndarray, n: np.ndarray, executor,
                 progress, with_zone: bool = False, caster=None, margin: float = 0.0, sky: bool = False,
-                layers: bool = False) -> tuple:
+                layers: bool = False, shared: SharedZones | None = None) -> tuple:
     """Equation 3 at points p, n (m, 3), chunked over the executor: (E (m, 3), w_sum (m,)), plus
     (m,) the smallest accepted zone radius ``with_zone`` (see :meth:`CacheLookup.irradiance_and_zone`).
     sky : E (m, 6) with the records' gathered sky in channels 3-5 (see :attr:`CacheLookup.sky`).
@@ -196,9 +202,10 @@ def interpolate(cache: IrradianceCache, a: float, gradients: bool, p: np.ndarray
         its ``rays_cast`` counts the visibility rays.
     margin : zones widened by this distance (deviation: gap-fill, see :attr:`CacheLookup.margin`).
     layers : test records in a layer under the point's surface too (see :attr:`CacheLookup.layers`).
+    shared : the bake's zone grid over the records ``cache`` starts with (see :attr:`CacheLookup.shared`).
     """
     lookup = CacheLookup(cache, a, gradients, margin=margin, sky=sky, layers=layers,
-                         cell_per_zone=cell_per_zone(len(p), len(cache)))
+                         cell_per_zone=cell_per_zone(len(p), len(cache)), shared=shared)
 
     def run(index, s):
         chunk = copy.copy(lookup)  # shares the cache's arrays; a view of the BVH per chunk counts its own rays

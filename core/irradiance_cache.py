@@ -294,23 +294,25 @@ def _recover(density: PhotonDensity, uncovered: np.ndarray, cache: IrradianceCac
 
 
 def cache_for_holes(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray, params: CacheParameters,
-                    rng: np.random.Generator, existing: IrradianceCache, caster=None, estimate: bool = True
-                    ) -> tuple[IrradianceCache, Zones, CacheBuildStats]:
+                    rng: np.random.Generator, existing: IrradianceCache, caster=None, estimate: bool = True,
+                    shared=None) -> tuple[IrradianceCache, Zones, CacheBuildStats]:
     """Section 3.4: Algorithm 1 over texel samples (c, 3) no record covers; records flagged ``hole``.
 
     estimate : False leaves E_k (and photons_used) 0 and the zones empty, for records that final
         gathering will give their E_k without reading their zone's photons: the density estimate
         (its surface coverage rays and photon queries) would be thrown away.
+    shared : the bake's :class:`~core.zone_grid.SharedZones`, whose records ``existing`` begins with, or None.
     """
     return place_records(density, cand_p, cand_n, np.zeros(len(cand_p)), np.zeros((len(cand_p), 3)), params, rng,
-                         candidate_is_photon=False, existing=existing, caster=caster, estimate=estimate)
+                         candidate_is_photon=False, existing=existing, caster=caster, estimate=estimate,
+                         shared=shared)
 
 
 # --------------------------------------------------------------------------- Algorithm 1
 def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray, w_sum: np.ndarray,
                   E_sum: np.ndarray, params: CacheParameters, rng: np.random.Generator,
                   candidate_is_photon: bool, progress=None, existing: IrradianceCache | None = None,
-                  caster=None, estimate: bool = True) -> tuple[IrradianceCache, Zones, CacheBuildStats]:
+                  caster=None, estimate: bool = True, shared=None) -> tuple[IrradianceCache, Zones, CacheBuildStats]:
     """The record-placement loop of Algorithm 1 over a generic candidate set, in blocks.
 
     cand_p, cand_n : (c, 3) float64 candidate positions and normals.
@@ -322,12 +324,13 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
     caster : a :class:`core.rays.RayCaster` over the scene; with it each record finds the walls
         in its tangent plane (:func:`~core.record_walls.wall_distances`), past which it is not used.
     estimate : as :func:`cache_for_holes` (candidates other than photons only).
+    shared : as :func:`cache_for_holes`.
     """
     threshold = 1.0 / params.a
     stats = CacheBuildStats()
     queries = density.queries
     records = _Records()
-    clamp = _NeighbourClamp(existing, params.neighbour_clamp, density.workers)
+    clamp = _NeighbourClamp(existing, params.neighbour_clamp, density.workers, shared)
     cand_tree = None if candidate_is_photon else cKDTree(cand_p)
     order = rng.permutation(len(cand_p))
     start, size = 0, 32  # the first block is small: it measures how many photons a zone holds
@@ -575,11 +578,18 @@ class _NeighbourClamp:
     while that is no more than twice as large), so each record is re-indexed O(log K) times.
     """
 
-    def __init__(self, existing: IrradianceCache | None, enabled: bool = True, workers: int = 1):
+    def __init__(self, existing: IrradianceCache | None, enabled: bool = True, workers: int = 1, shared=None):
+        """shared : a :class:`~core.zone_grid.SharedZones` whose records ``existing`` may begin with: their
+        kd-tree is then its, built once per bake (the clamp is a minimum over all records, however split)."""
         self.enabled, self.workers = enabled, workers
         self.levels = []  # (p (k, 3), R (k,), tree)
         if enabled and existing is not None and len(existing):
-            self.add(existing.p, existing.R)
+            R = np.asarray(existing.R, np.float64)
+            if shared is not None and shared.starts(existing.p, R, shared.R):
+                self.levels.append(shared.clamp_level())
+                self.add(existing.p[len(shared.p):], R[len(shared.p):])
+            else:
+                self.add(existing.p, existing.R)
 
     def clamp(self, p: np.ndarray, R: np.ndarray) -> np.ndarray:
         """(B,) R clamped against every record so far (p (B, 3), R (B,))."""

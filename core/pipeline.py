@@ -48,6 +48,7 @@ from .settings import BakeSettings
 from .sky_gathering import gather_sky, gathered_sky
 from .stats import BakeStats
 from .validity import sample_validity
+from .zone_grid import SharedZones
 
 
 @dataclass
@@ -520,14 +521,17 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
         if not passes:
             passes.append(store.memoise("cache", cache_key, passes_1_to_3))
             passes.append(_hole_sources(run, passes[0], params))
-        (cache, _, _), (density, sources) = passes
+            cache = passes[0][0]
+            passes.append(SharedZones(cache.p, cache.R, params.a))
+        (cache, _, _), (density, sources), shared = passes
         beside()  # the verdicts computed beside pass 2, if any
         shaded.append(t)
         name = f"{run.scene.targets[index].name} ({index + 1} of {len(targets)})" if len(targets) > 1 else ""
         with run.progress.naming(name):
             return indirect_at_texels(run.scene, run.caster(), density, sources, cache, index, t.points,
                                       t.texel_size, t.stream, params, settings, run.executor, run.progress, run.stats,
-                                      run.sky, run.contact(), t.raster.centre_triangle, verdicts.pop(index, None))
+                                      run.sky, run.contact(), t.raster.centre_triangle, verdicts.pop(index, None),
+                                      shared)
 
     shaded: list = []
     try:

@@ -12,6 +12,8 @@ in, so Equation 3's per-point sums are the same to the last bit.
 """
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from . import native_kernels
@@ -163,3 +165,85 @@ def _spread_bits(x: np.ndarray) -> np.ndarray:
     x = (x | (x << np.uint64(4))) & np.uint64(0x030C30C3)
     x = (x | (x << np.uint64(2))) & np.uint64(0x09249249)
     return x
+
+
+class JoinedZoneGrid:
+    """The pairs of several zone grids over consecutive runs of one cache's records, as one grid over all
+    of them would list them: ``parts`` are (grid, offset), the grid's record r being the cache's offset + r,
+    each part's records after the previous part's. A point's pairs from the first part come first, so its
+    records still ascend and Equation 3 sums the same terms in the same order, to the last bit."""
+
+    def __init__(self, parts: list):
+        self.parts = parts
+
+    def pairs(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        found = [(rows, records + offset) for grid, offset in self.parts for rows, records in [grid.pairs(q)]]
+        return merge_pairs(found, len(q))
+
+
+def merge_pairs(parts: list, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, records) of ``parts`` [(rows, records), ...] interleaved by point: rows ascending and, per
+    point, the first part's records, then the second's, ... (each part's rows ascending). m : points."""
+    counts = [np.bincount(rows, minlength=m) for rows, _ in parts]
+    total = np.sum(counts, axis=0) if counts else np.zeros(m, np.int64)
+    row_start = np.cumsum(total) - total
+    out_rows, out_records = np.empty(int(total.sum()), np.int64), np.empty(int(total.sum()), np.int64)
+    before = np.zeros(m, np.int64)  # per point, entries of earlier parts
+    for (rows, records), count in zip(parts, counts):
+        within = np.arange(len(rows), dtype=np.int64) - np.repeat(np.cumsum(count) - count, count)
+        at = row_start[rows] + before[rows] + within
+        out_rows[at], out_records[at] = rows, records
+        before += count
+    return out_rows, out_records
+
+
+class SharedZones:
+    """What every target's lookups in one bake share over the cache they all start from (pass 3's records),
+    built once instead of once per target and lookup: the zone grid, and the kd-tree neighbour clamping
+    places hole records against (:meth:`clamp_level`). A lookup over that cache takes the grid as it is;
+    one over the cache with records appended (a target's hole records, :meth:`IrradianceCache.extend`)
+    joins it with a grid over the appended ones (:class:`JoinedZoneGrid`). A scene of 300 props built 1,181
+    grids over its 47k records, 13 of its 58 s. The pairs, and so E, are those of a grid over the whole cache.
+
+    p, R : (K, 3) the shared records' positions and (K,) radii R_k; a : Ward's a (zones a R_k)."""
+
+    def __init__(self, p: np.ndarray, R: np.ndarray, a: float):
+        self.p, self.R = p, np.asarray(R, np.float64)
+        self.zone = a * self.R  # as CacheLookup.own_zone: the same floats
+        self._grid, self._clamp = None, None
+        self._lock = threading.Lock()
+
+    def __getstate__(self):  # a Dask worker gets the lookups that carry it: not the lock
+        return {k: v for k, v in self.__dict__.items() if k != "_lock"}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._lock = threading.Lock()
+
+    def starts(self, p: np.ndarray, values: np.ndarray, shared_values: np.ndarray) -> bool:
+        """Whether records p (K', 3) with ``values`` (K',) begin with the shared ones (``shared_values``)."""
+        K = len(self.p)
+        return len(p) >= K and np.array_equal(p[:K], self.p) and np.array_equal(values[:K], shared_values)
+
+    def grid(self, p: np.ndarray, zone: np.ndarray, cell_per_zone: float = CELL_PER_ZONE):
+        """A grid over records p (K', 3) of zones (K',): the shared one joined with one over those past it
+        where the shared records are their first K (equal positions and zones), else a grid of their own.
+        The shared grid takes the first caller's cell_per_zone (a speed choice only)."""
+        if not self.starts(p, zone, self.zone):
+            return ZoneGrid(p, zone, cell_per_zone)
+        K = len(self.p)
+        with self._lock:
+            if self._grid is None:
+                self._grid = ZoneGrid(self.p, self.zone, cell_per_zone)
+        if len(p) == K:
+            return self._grid
+        return JoinedZoneGrid([(self._grid, 0), (ZoneGrid(p[K:], zone[K:], cell_per_zone), K)])
+
+    def clamp_level(self) -> tuple:
+        """(p, R, cKDTree over p) of the shared records: neighbour clamping's first level."""
+        from scipy.spatial import cKDTree
+
+        with self._lock:
+            if self._clamp is None:
+                self._clamp = (self.p, self.R, cKDTree(self.p))
+        return self._clamp

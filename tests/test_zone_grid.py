@@ -2,7 +2,9 @@
 import numpy as np
 import pytest
 
-from pdic.core.zone_grid import CELL_PER_ZONE, DENSE_CELL_PER_ZONE, ZoneGrid, cell_per_zone
+from pdic.core.irradiance_cache import _NeighbourClamp
+from pdic.core.zone_grid import (CELL_PER_ZONE, DENSE_CELL_PER_ZONE, JoinedZoneGrid, SharedZones, ZoneGrid,
+                                 cell_per_zone)
 
 
 def brute_pairs(q, p, zone):
@@ -27,6 +29,54 @@ def test_pairs_are_exactly_the_points_inside_each_zone(spread, cell):
     assert np.array_equal(got, np.sort(want_rows * len(p) + want_recs))
     # Grouped by point, points ascending, each point's records ascending: Equation 3's sum order.
     assert np.all(np.diff(rows * len(p) + recs) > 0)
+
+
+def _records(rng, K=500):
+    p = rng.random((K, 3)) * 3.0
+    return p, 0.05 + rng.random(K) * 1.5  # R_k
+
+
+@pytest.mark.parametrize("cell", [CELL_PER_ZONE, DENSE_CELL_PER_ZONE])
+def test_a_shared_grid_joined_with_appended_records_lists_the_pairs_of_one_grid(cell):
+    """Every target's lookups start from pass 3's records, then append the target's hole records: the shared
+    grid, joined with a grid over the appended ones, lists the same pairs in the same order as one grid
+    over all (so Equation 3 sums the same terms in the same order)."""
+    rng = np.random.default_rng(3)
+    a = 0.4
+    p, R = _records(rng)
+    q = np.concatenate([rng.random((4000, 3)) * 4.0 - 0.5, p[::7] + 1e-4])
+    shared = SharedZones(p[:350], R[:350], a)
+    for K in (350, 351, 500):  # the shared records alone, one appended, many appended
+        zone = a * np.asarray(R[:K], np.float64)
+        grid = shared.grid(p[:K], zone, cell)
+        assert isinstance(grid, ZoneGrid if K == 350 else JoinedZoneGrid)
+        want = ZoneGrid(p[:K], zone, cell).pairs(q)
+        got = grid.pairs(q)
+        assert len(want[0]) > 1000
+        assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+    assert shared.grid(p[:350], a * R[:350]) is shared.grid(p[:400], a * R[:400]).parts[0][0]  # built once
+    # Records that do not begin with the shared ones (a moved record) get a grid of their own, still exact.
+    moved = p.copy()
+    moved[10] += 0.5
+    got = shared.grid(moved, a * R)
+    assert isinstance(got, ZoneGrid) and got is not shared.grid(p[:350], a * R[:350])
+    want = ZoneGrid(moved, a * R).pairs(q)
+    assert all(np.array_equal(x, y) for x, y in zip(got.pairs(q), want))
+
+
+def test_neighbour_clamping_against_a_shared_tree_clamps_the_same():
+    """Hole records are clamped against every record placed before them (R_k <= R_j + |p_k - p_j|); with
+    the bake's shared kd-tree over pass 3's records and one over the target's earlier rounds the radii
+    are the same, to the bit, as with one tree over all."""
+    rng = np.random.default_rng(5)
+    p, R = _records(rng, 800)
+    shared = SharedZones(p[:600], R[:600], 0.4)
+    existing = type("Existing", (), {"p": p, "R": R, "__len__": lambda self: len(p)})()
+    new_p, new_R = rng.random((300, 3)) * 3.0, 0.2 + rng.random(300) * 2.0
+    want = _NeighbourClamp(existing).clamp(new_p, new_R)
+    got = _NeighbourClamp(existing, shared=shared)
+    assert got.levels[0][2] is shared.clamp_level()[2]
+    assert np.array_equal(got.clamp(new_p, new_R), want) and (want < new_R).sum() > 100
 
 
 def test_finer_cells_where_many_points_query_each_record():
