@@ -250,7 +250,8 @@ def summary(entries: list) -> dict:
         dark_in_cycles += int(((lum_c < 1e-3 * level) & (lum_p > 0.05 * level)).sum())
         dark_in_pdic += int(((lum_p < 1e-3 * level) & (lum_c > 0.05 * level)).sum())
         count += int(centre.sum())
-        blocks.append(errors(P, (C1, C2), baked)["block"] ** 2 * baked.sum())
+        if baked.any():  # a prop's map Cycles leaves black (all in shadow) has no block error
+            blocks.append(errors(P, (C1, C2), baked)["block"] ** 2 * baked.sum())
     P, A, B = (np.concatenate(v)[None] for v in (P_all, A_all, B_all))
     mask = np.ones(P.shape[:2], bool)
     err = errors(P, (A, B), mask, block=1)
