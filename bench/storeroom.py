@@ -17,7 +17,6 @@ texel and on 8x8 blocks, the mean ratio and the texels one baker lights and the 
 """
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 from pathlib import Path
@@ -33,13 +32,10 @@ import pdic_bootstrap  # noqa: E402
 pdic_bootstrap.load()
 import bpy  # noqa: E402
 
-from bench.daylight_room import bake_job  # noqa: E402
 from bench.scenes import boxes_mesh  # noqa: E402
-from bench.town import competitors, describe, reference, summary  # noqa: E402
+from bench.town import run_scene  # noqa: E402
 from test_cathedral_direct_vs_cycles import _diffuse_material  # noqa: E402
 from test_direct_vs_cycles import _world  # noqa: E402
-from pdic import pdic_addon  # noqa: E402
-from pdic.pdic_addon import writeback  # noqa: E402
 
 ROOM = (8.0, 6.0, 3.0)
 """Inside size of the room, metres; the floor at z = 0, centred on the origin in x and y."""
@@ -152,48 +148,7 @@ def kind(name: str) -> str:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--density", type=float, default=16.0, help="texels per metre")
-    ap.add_argument("--spp", type=int, default=512)
-    ap.add_argument("--bounces", type=int, default=32)
-    ap.add_argument("--threads", type=int, default=0)
-    ap.add_argument("--seed", type=int, default=0, help="PDIC's seed")
-    ap.add_argument("--quality", default="FINAL", choices=("PREVIEW", "FINAL"))
-    ap.add_argument("--deviations", default="", help="switches as bench/run.py's, e.g. crevice_records=0")
-    ap.add_argument("--competitors", default="", help="Cycles + OIDN at these samples, e.g. 4,16,64")
-    ap.add_argument("--out", default="/tmp/pdic_storeroom")
-    args = ap.parse_args(argv)
-    folder = Path(args.out)
-    folder.mkdir(parents=True, exist_ok=True)
-    pdic_addon.register()
-    objects = build()
-    job, wall, cpu = bake_job(args, folder)
-    result = job.result
-    writeback.set_shading(objects, baked=False)  # Cycles bakes the objects' own materials
-    sizes = {ob.name: result.direct[ob.name].shape[1::-1] for ob in objects}
-    counters = result.stats["counters"]
-    texels = sum(int(result.centre_inside[ob.name].sum()) for ob in objects)
-    print(f"storeroom: {len(objects)} objects, {texels:,} texels at {args.density:g} texels/m; PDIC "
-          f"{args.quality.title()} {wall:.1f} s wall, {cpu:.1f} CPU s (unwrap included), records "
-          f"{counters.get('records_total', 0):,}, hole records {counters.get('hole_records', 0):,}; stages (wall s) "
-          f"{', '.join(f'{k} {v:.1f}' for k, v in result.stats.get('seconds', {}).items())}")
-    for passes, images in (("DIRECT", result.direct), ("INDIRECT", result.indirect)):
-        pairs, covered, seconds = reference(objects, sizes, passes, args.spp, args.bounces, folder)
-        print(f"{passes.lower()}: Cycles {args.spp} spp x 2 ({seconds:.0f} s)")
-        groups = {}
-        for ob in objects:
-            C1, C2 = pairs[ob.name]
-            both = covered[ob.name] & result.centre_inside[ob.name]
-            baked = ((C1.sum(axis=2) > 0) | (C2.sum(axis=2) > 0)) & both
-            groups.setdefault(kind(ob.name), []).append((images[ob.name], C1, C2, baked, both))
-        groups["all"] = [entry for key in list(groups) for entry in groups[key]]
-        for key, entries in groups.items():
-            print(f"  {key:9s} " + describe(summary(entries)))
-    np.savez_compressed(folder / f"pdic_seed{args.seed}.npz",
-                        **{f"{ob.name}:{p}": getattr(result, p)[ob.name] for ob in objects for p in ("direct", "indirect")})
-    if args.competitors:
-        competitors(objects, sizes, result, [int(spp) for spp in args.competitors.split(",")], cpu, args, folder)
-
+    run_scene("storeroom", build, kind, argv, density=16.0, spp=512)
 
 if __name__ == "__main__":
     main()

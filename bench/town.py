@@ -155,31 +155,46 @@ def kind(name: str) -> str:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--density", type=float, default=2.0, help="texels per metre")
-    ap.add_argument("--spp", type=int, default=256)
+    run_scene("town", build, kind, argv, density=2.0, spp=256)
+
+
+def run_scene(name: str, build_scene, kind, argv=None, density: float = 2.0, spp: int = 256) -> None:
+    """A many-object bench scene end to end: ``build_scene()`` (its mesh objects), PDIC through the add-on,
+    the Cycles pairs, the errors per ``kind(object name)`` (:func:`compare`), and ``--competitors``.
+    density, spp : the scene's default texels per metre and reference samples."""
+    ap = argparse.ArgumentParser(prog=f"bench/{name}.py")
+    ap.add_argument("--density", type=float, default=density, help="texels per metre")
+    ap.add_argument("--spp", type=int, default=spp)
     ap.add_argument("--bounces", type=int, default=32)
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--seed", type=int, default=0, help="PDIC's seed")
     ap.add_argument("--quality", default="FINAL", choices=("PREVIEW", "FINAL"))
     ap.add_argument("--deviations", default="", help="switches as bench/run.py's, e.g. sky_gathering=0")
     ap.add_argument("--competitors", default="", help="Cycles + OIDN at these samples, e.g. 4,16,64")
-    ap.add_argument("--out", default="/tmp/pdic_town")
+    ap.add_argument("--out", default=f"/tmp/pdic_{name}")
     args = ap.parse_args(argv)
     folder = Path(args.out)
     folder.mkdir(parents=True, exist_ok=True)
     pdic_addon.register()
-    objects = build()
+    objects = build_scene()
     job, wall, cpu = bake_job(args, folder)
     result = job.result
     writeback.set_shading(objects, baked=False)  # Cycles bakes the objects' own materials
     sizes = {ob.name: result.direct[ob.name].shape[1::-1] for ob in objects}
     counters = result.stats["counters"]
     texels = sum(int(result.centre_inside[ob.name].sum()) for ob in objects)
-    print(f"town: {len(objects)} objects, {texels:,} texels at {args.density:g} texels/m; PDIC {args.quality.title()} "
-          f"{wall:.1f} s wall, {cpu:.1f} CPU s (unwrap included), records {counters.get('records_total', 0):,}, "
-          f"photons stored {counters.get('photons_stored', 0):,}, sky gathered {counters.get('sky_gathered', 0)}; "
+    print(f"{name}: {len(objects)} objects, {texels:,} texels at {args.density:g} texels/m; PDIC "
+          f"{args.quality.title()} {wall:.1f} s wall, {cpu:.1f} CPU s (unwrap included), records "
+          f"{counters.get('records_total', 0):,} ({counters.get('hole_records', 0):,} hole records), photons stored "
+          f"{counters.get('photons_stored', 0):,}, sky gathered {counters.get('sky_gathered', 0)}; "
           f"stages (wall s) {', '.join(f'{k} {v:.1f}' for k, v in result.stats.get('seconds', {}).items())}")
+    compare(objects, result, sizes, args, folder, kind)
+    if args.competitors:
+        competitors(objects, sizes, result, [int(spp) for spp in args.competitors.split(",")], cpu, args, folder)
+
+def compare(objects, result, sizes: dict, args, folder: Path, kind) -> None:
+    """Print PDIC's direct and indirect light against the Cycles pairs (:func:`reference`), per object kind
+    (``kind(name)``) and over all, and save PDIC's maps in ``folder``."""
     for passes, images in (("DIRECT", result.direct), ("INDIRECT", result.indirect)):
         pairs, covered, seconds = reference(objects, sizes, passes, args.spp, args.bounces, folder)
         print(f"{passes.lower()}: Cycles {args.spp} spp x 2 ({seconds:.0f} s)")
@@ -194,8 +209,6 @@ def main(argv=None):
             print(f"  {key:9s} " + describe(summary(entries)))
     np.savez_compressed(folder / f"pdic_seed{args.seed}.npz",
                         **{f"{ob.name}:{p}": getattr(result, p)[ob.name] for ob in objects for p in ("direct", "indirect")})
-    if args.competitors:
-        competitors(objects, sizes, result, [int(spp) for spp in args.competitors.split(",")], cpu, args, folder)
 
 
 def competitors(objects, sizes: dict, result, ladder: list, pdic_cpu: float, args, folder: Path) -> None:
