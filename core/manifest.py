@@ -46,7 +46,8 @@ Schema (``schema_version`` 1)
     ``direct`` stage runs on a thread of its own beside passes 2-3 and the first target's texels'
     stage, and ``direct_wait`` is the time the bake then waited for it, if any; ``validity``, texel
     validity and the crevice test, likewise beside pass 2 once the photons are traced, and
-    ``verdicts_wait``), ``seconds_beside``
+    ``verdicts_wait``; ``texels``, the texels' stages of the smallest objects of a bake of several, on a
+    thread of their own beside the others', and ``texels_wait``), ``seconds_beside``
     (list of the stages that ran beside others, absent when none did), ``seconds_total`` (float, s:
     the stages' sum, those beside left out), ``counters`` (dict name -> int or float: photons,
     records, rays cast/saved, texels, ...), ``kernels`` (str: how Equation 3 ran, ``"compiled (<library>)"`` or

@@ -44,6 +44,8 @@ STAGE_LABELS = (
     ("photon_direct", "Pass 3: photon direct"),
     ("refine", "Pass 3: refine"),
     ("interpolate", "Interpolate"),
+    ("texels", "Small objects' texels"),
+    ("texels_wait", "Waiting for small objects"),
     ("dilate", "Dilate"),
     ("addon_write_images", "Write images"),
 )

@@ -4,6 +4,8 @@ what they cast, stop with the bake and pass their errors on."""
 import threading
 import time
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -36,9 +38,10 @@ def test_the_direct_light_beside_passes_2_and_3_is_the_direct_light_in_line(thre
     seconds = beside.stats["seconds"]
     assert "direct" in seconds
     if threads > 1:  # its time overlaps passes 2-3: listed, not summed (what the bake waited for it is)
-        assert beside.stats["seconds_beside"] == ["direct", "validity"]  # texel validity beside pass 2 too
+        # texel validity beside pass 2 too, and the smaller target's texels beside the larger's
+        assert beside.stats["seconds_beside"] == ["direct", "texels", "validity"]
         assert beside.stats["seconds_total"] == pytest.approx(
-            sum(v for k, v in seconds.items() if k not in ("direct", "validity")), abs=1e-3)
+            sum(v for k, v in seconds.items() if k not in ("direct", "texels", "validity")), abs=1e-3)
         assert 0.0 < beside.stats["counters"]["embree_share_direct"] <= 1.0
     else:  # one thread: in line, as before
         assert "seconds_beside" not in beside.stats
@@ -77,7 +80,7 @@ def test_the_texels_stage_beside_the_direct_light_computes_and_counts_what_it_do
     same maps and the same count of those tests' rays as a bake with everything in line on one thread."""
     scene = box_on_ground()
     two, one = (bake(scene, preset("FINAL", threads=threads, **FINAL)) for threads in (2, 1))
-    assert two.stats["seconds_beside"] == ["direct", "validity"]
+    assert two.stats["seconds_beside"][:1] == ["direct"] and "validity" in two.stats["seconds_beside"]
     for name in one.direct:
         assert np.array_equal(two.direct[name], one.direct[name]), name
         assert np.array_equal(two.indirect[name], one.indirect[name]), name
@@ -122,3 +125,22 @@ def test_a_cancel_of_the_watched_progress_stops_the_side_at_its_next_check():
     with pytest.raises(Cancelled):
         beside.wait()
     assert checks and not _beside_threads()
+
+
+def test_the_smaller_targets_texels_beside_the_larger_give_the_light_and_counts_of_one_thread():
+    """With two workers the smallest targets' texels' stages run on a thread beside the bake's (a scene of
+    many small objects ran each on one core): every map, and every work counter, as on one thread."""
+    scene = lamp_box(16)  # two targets, the floor and the back wall
+    small = replace(scene, targets=(scene.targets[0], replace(scene.targets[1], width=8, height=8)))
+    two, one = (bake(small, preset("FINAL", threads=threads, **FINAL)) for threads in (2, 1))
+    assert "texels" in two.stats["seconds_beside"] and "texels" not in one.stats["seconds"]
+    for name in one.lightmaps:
+        assert one.indirect[name].max() > 0
+        assert np.array_equal(two.lightmaps[name], one.lightmaps[name]), name
+    a, b = two.stats["counters"], one.stats["counters"]
+    assert a["targets_shaded_indirect"] == b["targets_shaded_indirect"] == 2
+    for key in b:
+        if not key.startswith("embree_"):
+            assert a[key] == b[key], key
+    assert a["hole_records"] > 0 and a["texel_points_interpolated"] > 0
+    assert not _beside_threads()
