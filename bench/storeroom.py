@@ -58,7 +58,8 @@ def room_boxes() -> list:
 
 def shelf_boxes(x0: float, y0: float) -> tuple[list, list]:
     """(boxes, board tops): a 1.6 x 0.4 m shelving unit, 2 m tall, its back 1 cm off the wall at y0."""
-    boxes = [((x0 + dx, y0 + dy, 0.0), (x0 + dx + 0.04, y0 + dy + 0.04, 2.0)) for dx in (0.0, 1.56) for dy in (0.0, 0.36)]
+    boxes = [((x0 + dx, y0 + dy, 0.0), (x0 + dx + 0.04, y0 + dy + 0.04, 2.0))
+             for dx in (0.0, 1.56) for dy in (0.0, 0.36)]
     tops = []
     for z in (0.1, 0.8, 1.5):
         boxes.append(((x0 + 0.04, y0, z - 0.02), (x0 + 1.56, y0 + 0.4, z)))

@@ -520,15 +520,14 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
         direct.start()
         return build_cache(run, photons, params, verdicts_beside)
 
-    def ready() -> tuple:
-        """Passes 1-3 and the texel verdicts beside them, once; (passes, what hole records read, shared zones)."""
+    def ready() -> None:
+        """Passes 1-3, what hole records read and the shared zones (``passes``), and the texel verdicts, once."""
         if not passes:
             passes.append(store.memoise("cache", cache_key, passes_1_to_3))
             passes.append(_hole_sources(run, passes[0], params))
             cache = passes[0][0]
             passes.append(SharedZones(cache.p, cache.R, params.a))
         beside()  # the verdicts computed beside pass 2, if any
-        return passes
 
     def texels(index: int, t: TargetTexels, r: "_Run"):
         """Target ``index``'s texels' stage on run ``r`` (the bake's, or one beside it: workers, statistics, rays)."""
