@@ -202,8 +202,11 @@ class _GrowingCache:
         self.added.append(new)
         self._joined = None
 
-    def placed(self) -> "_Placed":
-        """Every record's position and radius, what neighbour clamping reads of the records placed before."""
+    def placed(self) -> "_Placed | IrradianceCache":
+        """Every record's position and radius, what neighbour clamping reads of the records placed before
+        (the cache itself, not a copy, before any round appended)."""
+        if not self.added:
+            return self.base
         parts = [self.base, *self.added]
         return _Placed(np.concatenate([c.p for c in parts]), np.concatenate([c.R for c in parts]))
 

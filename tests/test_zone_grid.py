@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 
+from pdic.core.hole_records import _Placed
 from pdic.core.irradiance_cache import _NeighbourClamp
 from pdic.core.zone_grid import (CELL_PER_ZONE, DENSE_CELL_PER_ZONE, JoinedZoneGrid, SharedZones, ZoneGrid,
                                  cell_per_zone)
@@ -71,7 +72,7 @@ def test_neighbour_clamping_against_a_shared_tree_clamps_the_same():
     rng = np.random.default_rng(5)
     p, R = _records(rng, 800)
     shared = SharedZones(p[:600], R[:600], 0.4)
-    existing = type("Existing", (), {"p": p, "R": R, "__len__": lambda self: len(p)})()
+    existing = _Placed(p, R)
     new_p, new_R = rng.random((300, 3)) * 3.0, 0.2 + rng.random(300) * 2.0
     want = _NeighbourClamp(existing).clamp(new_p, new_R)
     got = _NeighbourClamp(existing, shared=shared)
