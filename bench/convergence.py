@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/convergence.py [--scenes cornell,occluded,sponza] [--quality FINAL]
         [--bounces 6,64] [--density-control 0] [--photons N] [--figure5]
-        [--deviations path_visibility=1,virtual_cell_minimum=1]
+        [--deviations path_visibility=1,virtual_cell_minimum=1] [--set r_min_texels=3]
 
 Needs bench/converged_references.py's output (references in bench/references/, the one-object
 core scenes in bench/results/converged/). Per bake: bias = sum PDIC / sum reference - 1 over the
@@ -128,6 +128,7 @@ def main(argv=None):
     ap.add_argument("--tag", default="", help="references baked with bench/converged_references.py --tag "
                     "(e.g. _b52; for Blender 5.2's Cycles also --footprint-side 1, as the add-on sets it)")
     ap.add_argument("--deviations", default="", help="Deviations switches, e.g. path_visibility=1")
+    ap.add_argument("--set", default="", help="BakeSettings overrides, e.g. r_min_texels=3,a=0.5")
     ap.add_argument("--footprint-side", type=float, default=None,
                     help="direct_footprint_side (texels): 1 for Blender 5.2's Cycles, as the add-on sets it")
     ap.add_argument("--kernel-coverage", choices=("default", "on", "off"), default="default",
@@ -149,6 +150,7 @@ def main(argv=None):
         for bounces in (int(b) for b in args.bounces.split(",")):
             for n in (int(v) for v in args.density_control.split(",")):
                 side = {} if args.footprint_side is None else dict(direct_footprint_side=args.footprint_side)
+                side.update(bench_run.overrides(args.set))
                 measure(name, scene, pair, args.quality,
                         dict(max_bounces=bounces, density_control=n, photons=photons, **side), args.deviations, masks,
                         [int(v) for v in args.seeds.split(",")])

@@ -47,7 +47,7 @@ import cycles_reference as cr  # noqa: E402
 from bench.scenes import boxes_mesh  # noqa: E402
 from bench.competitors import (clocked, cycles_bake, denoise, errors, set_cycles_threads,  # noqa: E402
                                texel_geometry, warm_up_denoisers)
-from bench.run import with_deviations  # noqa: E402
+from bench.run import with_deviations, with_overrides  # noqa: E402
 from test_cathedral_direct_vs_cycles import _diffuse_material  # noqa: E402
 from test_direct_vs_cycles import _world  # noqa: E402
 from pdic import pdic_addon  # noqa: E402
@@ -185,14 +185,15 @@ def reference(ob, W: int, H: int, passes: str, spp: int, bounces: int, folder: P
 
 def bake_job(args, folder: Path, **overrides):
     """PDIC at ``args.quality``, ``args.density`` texels per metre, ``args.seed``, ``args.threads`` and
-    ``args.deviations`` (and BakeSettings ``overrides``) through the add-on's BakeJob, with a fresh bake
+    ``args.deviations`` (and ``args.set``, if the bench has it, and BakeSettings ``overrides``) through the add-on's BakeJob, with a fresh bake
     cache and the unwraps cached in ``folder``: (the job, wall seconds, CPU seconds, the unwrap included)."""
     props = bpy.context.scene.pdic
     props.quality = args.quality
     props.texel_density = args.density
     props.seed = args.seed
     props.image_format = "EXR_FLOAT"
-    settings = replace(with_deviations(to_settings(props, threads=args.threads), args.deviations), **overrides)
+    settings = with_deviations(to_settings(props, threads=args.threads), args.deviations)
+    settings = replace(with_overrides(settings, getattr(args, "set", "")), **overrides)
     t, cpu = time.perf_counter(), time.process_time()
     job = job_module.BakeJob(bpy.context, settings, output_folder=str(folder / "maps"),
                              cache_dir=folder / "unwrap_cache")

@@ -342,6 +342,25 @@ def with_deviations(settings, switches: str):
     return replace(settings, deviations=replace(settings.deviations, **values))
 
 
+def overrides(items: str) -> dict:
+    """BakeSettings fields from "name=value,other=value", each value read as the field's type
+    (r_min_texels=3, a=0.5): the benches' ``--set`` option."""
+    from pdic.core.settings import BakeSettings
+
+    defaults, values = BakeSettings(), {}
+    for item in filter(None, items.split(",")):
+        name, value = item.split("=")
+        if not hasattr(defaults, name) or name == "deviations":
+            raise SystemExit(f"--set: BakeSettings has no field {name!r} (deviations go in --deviations)")
+        values[name] = type(getattr(defaults, name))(float(value) if "." in value else int(value))
+    return values
+
+
+def with_overrides(settings, items: str):
+    """``settings`` with the fields of :func:`overrides` set."""
+    return replace(settings, **overrides(items))
+
+
 def _bake_dict(bake) -> dict:
     return bake if isinstance(bake, dict) else dict(images=bake.images, coverage=bake.coverage)
 

@@ -1,7 +1,7 @@
 """A storeroom of many small stacked props: PDIC Final against Cycles, texel by texel.
 
     .venv/bin/python bench/storeroom.py [--density 16] [--spp 512] [--bounces 32] [--seed 0] [--out DIR]
-        [--quality PREVIEW] [--deviations crevice_records=0] [--competitors 4,16,64]
+        [--quality PREVIEW] [--deviations crevice_records=0] [--set r_min_texels=3] [--competitors 4,16,64]
 
 A game level's interior is one room and many small props, each its own object with a small light map,
 stacked on each other and on shelves. A closed room (8 x 6 x 3 m, 20 cm walls, one object), three

@@ -1,7 +1,7 @@
 """An outdoor town under a sun and a blue sky, many objects: PDIC Final against Cycles, texel by texel.
 
     .venv/bin/python bench/town.py [--density 2] [--spp 256] [--bounces 32] [--seed 0] [--out DIR]
-        [--quality PREVIEW] [--deviations sky_gathering=0] [--competitors 4,16,64]
+        [--quality PREVIEW] [--deviations sky_gathering=0] [--set r_min_texels=3] [--competitors 4,16,64]
 
 Every other bench scene is an interior or one object; a game level or a city block is many objects
 outdoors, lit mostly by the sky, at a scale of a hundred metres. A ground plane (a single face, as
@@ -170,6 +170,7 @@ def run_scene(name: str, build_scene, kind, argv=None, density: float = 2.0, spp
     ap.add_argument("--seed", type=int, default=0, help="PDIC's seed")
     ap.add_argument("--quality", default="FINAL", choices=("PREVIEW", "FINAL"))
     ap.add_argument("--deviations", default="", help="switches as bench/run.py's, e.g. sky_gathering=0")
+    ap.add_argument("--set", default="", help="BakeSettings overrides, e.g. r_min_texels=3,a=0.5")
     ap.add_argument("--competitors", default="", help="Cycles + OIDN at these samples, e.g. 4,16,64")
     ap.add_argument("--out", default=f"/tmp/pdic_{name}")
     args = ap.parse_args(argv)
