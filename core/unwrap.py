@@ -36,7 +36,7 @@ from .cache_files import read_entry, write_entry
 from .uv_overlap import uv_overlaps
 
 # Bump when anything here changes the UVs produced for the same input (cache key).
-ALGORITHM_VERSION = 3
+ALGORITHM_VERSION = 4
 # Chart-option variants tried in turn when the xatlas child process crashes
 # (see core.xatlas_charts.chart_options).
 CHART_VARIANTS = 2

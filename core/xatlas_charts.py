@@ -29,10 +29,13 @@
    4 texels/m: its large walls at 0.94 per metre).
 4. **Overlap repair.** xatlas can fold a chart onto itself where surfaces are
    stacked (coplanar faces with their own vertices, differently triangulated:
-   12 texel centres on Sponza) or duplicated. Every polygon whose UV triangles
-   share a test point with another polygon's (except one polygon per point) is
-   taken out as an island of its own, laid flat on its best-fit plane at the
-   chart scale, and the charts are packed again (:func:`repair_overlaps`).
+   12 texel centres on Sponza) or duplicated, or fold a sliver of a chart over its
+   neighbour (Sponza's round columns at 16 texels/m: cap triangles a hundredth of a
+   texel over the side triangles). Every polygon whose UV triangles share a test
+   point with another polygon's (except one polygon per point; the points: texel
+   centres and 2x2 per texel) is taken out as an island of its own, laid flat on
+   its best-fit plane at the chart scale, and the charts are packed again, for up
+   to :data:`REPAIR_ROUNDS` rounds (:func:`_polygons_to_detach`).
 """
 from __future__ import annotations
 
@@ -49,9 +52,10 @@ MAX_PACK_ATTEMPTS = 10
 GOOD_FILL = 0.95
 # A map that cannot hold the charts grows by this factor per try (rounded up to 4 texels).
 GROWTH = 1.25
-# Overlap repair: test points per texel axis (2: also overlaps thinner than a texel), rounds.
+# Overlap repair: test points per texel axis besides the centres (2: the bake's samples, and overlaps
+# thinner than a texel), rounds.
 REPAIR_SAMPLES = 2
-REPAIR_ROUNDS = 3
+REPAIR_ROUNDS = 5
 
 
 class PackError(RuntimeError):
@@ -165,8 +169,14 @@ def _one_uv_per_polygon_corner(uv_corner, tri, polygon):
 
 def _polygons_to_detach(uv_corner, polygon, resolution):
     """Polygons to move out: at every test point inside two or more polygons' triangles,
-    all but the lowest-numbered polygon."""
-    point, owner = overlap_points(uv_corner, None, resolution, resolution, REPAIR_SAMPLES)
+    all but the lowest-numbered polygon. The test points are the texel centres (what a Cycles
+    bake samples and :func:`core.unwrap.unwrap`'s gate tests) and REPAIR_SAMPLES x REPAIR_SAMPLES
+    points per texel (the bake's samples, and folds thinner than a texel): neither grid holds the
+    other's points, and a fold a hundredth of a texel thick (Sponza as one object at 16 texels/m,
+    round columns' cap and side triangles) covers a point of one alone."""
+    found = [overlap_points(uv_corner, None, resolution, resolution, n) for n in (1, REPAIR_SAMPLES)]
+    point = np.concatenate([found[0][0], found[1][0] + resolution * resolution])  # one index space per grid
+    owner = np.concatenate([found[0][1], found[1][1]])
     if len(point) == 0:
         return np.zeros(0, np.int64)
     owner_poly = polygon[owner]

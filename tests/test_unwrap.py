@@ -199,3 +199,20 @@ def test_corrupt_cache_file_is_recomputed(tmp_path):
     path.write_bytes(b"not a zip")
     again = unwrap(p, t, 64, 2, tmp_path)
     assert not again.from_cache and np.array_equal(again.uv, first.uv)
+
+
+def test_repair_finds_a_fold_that_covers_a_texel_centre_and_no_sub_sample():
+    """Sponza as one object at 16 texels/m: xatlas folded round columns' cap triangles 0.013 texels over
+    their side triangles, a sliver across texel centres (v = 572.5) between the repair's 2x2 test rows
+    (572.25, 572.75); the repair saw no overlap and the unwrap's gate refused the layout (9 centres).
+    The repair tests the centres too: the later polygon of the two is moved out."""
+    from pdic.core.uv_overlap import uv_overlaps
+    from pdic.core.xatlas_charts import REPAIR_SAMPLES, _polygons_to_detach
+
+    resolution = 8
+    cap = [[3.78, 1.778], [3.10, 2.503], [3.79, 2.507]]  # ends a hundredth of a texel above v = 2.5
+    side = [[3.48, 2.494], [3.47, 7.498], [4.03, 2.494]]  # starts a hundredth below it
+    uv = np.array([cap, side], np.float64) / resolution
+    assert uv_overlaps(uv, None, resolution, resolution) == 1  # the centre (3.5, 2.5) lies in both
+    assert uv_overlaps(uv, None, resolution, resolution, REPAIR_SAMPLES) == 0  # no 2x2 point does
+    assert _polygons_to_detach(uv.astype(np.float32), np.array([10, 11]), resolution).tolist() == [11]
