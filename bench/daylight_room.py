@@ -185,8 +185,9 @@ def reference(ob, W: int, H: int, passes: str, spp: int, bounces: int, folder: P
 
 def bake_job(args, folder: Path, **overrides):
     """PDIC at ``args.quality``, ``args.density`` texels per metre, ``args.seed``, ``args.threads`` and
-    ``args.deviations`` (and ``args.set``, if the bench has it, and BakeSettings ``overrides``) through the add-on's BakeJob, with a fresh bake
-    cache and the unwraps cached in ``folder``: (the job, wall seconds, CPU seconds, the unwrap included)."""
+    ``args.deviations`` (and ``args.set`` where the bench has it, and BakeSettings ``overrides``) through
+    the add-on's BakeJob, with a fresh bake cache and the unwraps cached in ``folder``: (the job, wall
+    seconds, CPU seconds, the unwrap included)."""
     props = bpy.context.scene.pdic
     props.quality = args.quality
     props.texel_density = args.density

@@ -352,7 +352,8 @@ def overrides(items: str) -> dict:
         name, value = item.split("=")
         if not hasattr(defaults, name) or name == "deviations":
             raise SystemExit(f"--set: BakeSettings has no field {name!r} (deviations go in --deviations)")
-        values[name] = type(getattr(defaults, name))(float(value) if "." in value else int(value))
+        kind = type(getattr(defaults, name))
+        values[name] = value if kind is str else kind(float(value))  # photons=1e6, r_min_texels=3, gradients=0
     return values
 
 
