@@ -246,7 +246,9 @@ def unwrap(positions: np.ndarray, triangles: np.ndarray, resolution: int, paddin
     overlaps = uv_overlaps(result.uv, None, result.resolution, result.resolution)
     if overlaps:
         raise UnwrapError(f"{overlaps} texel centres of the {result.resolution}x{result.resolution} light map lie "
-                          f"inside two or more UV triangles after repair; please report this mesh")
+                          f"inside two or more UV triangles after repair; a map of another size packs the charts "
+                          f"anew (change the object's Resolution or the Texel Density a little), and please "
+                          f"report this mesh")
     if path is not None:
         warning = _store(path, result)
         if warning:
