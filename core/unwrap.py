@@ -247,7 +247,7 @@ def unwrap(positions: np.ndarray, triangles: np.ndarray, resolution: int, paddin
     if overlaps:
         raise UnwrapError(f"{overlaps} texel centres of the {result.resolution}x{result.resolution} light map lie "
                           f"inside two or more UV triangles after repair; a map of another size packs the charts "
-                          f"anew (change the object's Resolution or the Texel Density a little), and please "
+                          f"anew (change the object's Resolution Override or the Texel Density a little), and please "
                           f"report this mesh")
     if path is not None:
         warning = _store(path, result)
@@ -341,7 +341,7 @@ def _layout_in_child(p, tri, resolution, padding, poly, max_resolution, cancelle
     raise UnwrapCrashed(f"xatlas crashed on this mesh with all {CHART_VARIANTS} chart-option sets "
                         f"({'; '.join(crashes)}); a known xatlas bug (jpcy/xatlas#146) on some regular meshes, "
                         f"e.g. an ico sphere with 7 subdivisions: change the mesh (e.g. fewer subdivisions) "
-                        f"or give it a light-map UV map of your own")
+                        f"or turn off the object's Bake Light Map (it still casts shadows and bounces light)")
 
 
 def ask_child(request: dict, arrays: dict, cancelled, time_limit: float, prefix: str) -> tuple[dict | None, object]:
