@@ -212,10 +212,7 @@ class _GrowingCache:
 
     def joined(self) -> IrradianceCache:
         if self._joined is None:
-            added = self.added[0]
-            for more in self.added[1:]:
-                added = added.extend(more)
-            self._joined = self.base.extend(added)  # concatenation: the arrays of extending round by round
+            self._joined = IrradianceCache.concatenate([self.base, *self.added])
         return self._joined
 
 

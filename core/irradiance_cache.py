@@ -126,16 +126,21 @@ class IrradianceCache:
         return self.E_sky is not None
 
     def extend(self, other: "IrradianceCache") -> "IrradianceCache":
+        return IrradianceCache.concatenate([self, other])
+
+    @staticmethod
+    def concatenate(parts: list) -> "IrradianceCache":
+        """The records of ``parts`` (a non-empty list of caches) in order, each column copied once: joining
+        many caches pairwise copies the growing front again at every step."""
         def joined(f):
-            mine, theirs = getattr(self, f), getattr(other, f)
-            if mine is None and theirs is None:
+            columns = [getattr(c, f) for c in parts]
+            given = [c for c in columns if c is not None]
+            if not given:
                 return None
-            if mine is None or theirs is None:  # a sky field: records that gathered no sky have none
-                shape = (mine if mine is not None else theirs).shape[1:]
-                mine = np.zeros((len(self),) + shape) if mine is None else mine
-                theirs = np.zeros((len(other),) + shape) if theirs is None else theirs
-            return np.concatenate([mine, theirs])
-        return IrradianceCache(*(joined(f) for f in self.__dataclass_fields__))
+            shape = given[0].shape[1:]  # a sky field: records that gathered no sky have none, read as 0
+            return np.concatenate([np.zeros((len(c),) + shape) if column is None else column
+                                   for c, column in zip(parts, columns)])
+        return IrradianceCache(*(joined(f) for f in IrradianceCache.__dataclass_fields__))
 
     def take(self, index) -> "IrradianceCache":
         return IrradianceCache(*(None if getattr(self, f) is None else getattr(self, f)[index]

@@ -520,30 +520,22 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
         direct.start()
         return build_cache(run, photons, params, verdicts_beside)
 
-    def ready() -> None:
-        """Passes 1-3, what hole records read and the shared zones (``passes``), and the texel verdicts, once."""
-        if not passes:
-            passes.append(store.memoise("cache", cache_key, passes_1_to_3))
-            passes.append(_hole_sources(run, passes[0], params))
-            cache = passes[0][0]
-            passes.append(SharedZones(cache.p, cache.R, params.a))
-        beside()  # the verdicts computed beside pass 2, if any
-
     def texels(index: int, t: TargetTexels, r: "_Run"):
         """Target ``index``'s texels' stage on run ``r`` (the bake's, or one beside it: workers, statistics, rays)."""
         (cache, _, _), (density, sources), shared = passes
-        shaded.append(t)
         name = f"{r.scene.targets[index].name} ({index + 1} of {len(targets)})" if len(targets) > 1 else ""
         with r.progress.naming(name):
             return indirect_at_texels(r.scene, r.caster(), density, sources, cache, index, t.points, t.texel_size,
                                       t.stream, params, settings, r.executor, r.progress, r.stats, r.sky, r.contact(),
                                       t.raster.centre_triangle, verdicts.pop(index, None), shared)
 
-    shaded: list = []
     todo = {index for index in range(len(targets)) if stored[index] is None}
     try:
-        if todo:
-            ready()
+        if todo:  # passes 1-3, what hole records read, the shared zones; the verdicts computed beside pass 2
+            passes.append(store.memoise("cache", cache_key, passes_1_to_3))
+            passes.append(_hole_sources(run, passes[0], params))
+            passes.append(SharedZones(passes[0][0].p, passes[0][0].R, params.a))
+            beside()
             _texel_stages(run, [(index, targets[index]) for index in sorted(todo)], stored, texels)
         for index, t in enumerate(targets):  # rasterise_targets' list: scene.targets' order
             if index in todo:
@@ -556,12 +548,10 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
     except BaseException:
         beside.stop()
         raise
-    run.stats.set(targets_shaded_indirect=len(shaded))
+    run.stats.set(targets_shaded_indirect=len(todo))
     cache, photons, lighting = passes[0] if passes else (store.get("cache", cache_key) or (IrradianceCache(), None, None))
     run.stats.set(hole_records=int(sum(len(t.holes) for t in targets if t.holes is not None)))
-    for t in targets:
-        if t.holes is not None and len(t.holes):
-            cache = cache.extend(t.holes)
+    cache = IrradianceCache.concatenate([cache, *(t.holes for t in targets if t.holes is not None and len(t.holes))])
     run.stats.set(records_total=len(cache))
     return cache, photons, lighting
 

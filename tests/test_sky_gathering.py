@@ -142,3 +142,24 @@ def test_the_sky_stays_with_the_texels_where_records_cannot_gather_it(case):
     assert counters["sky_gathered"] == 0
     assert counters["shadow_rays_world"] > 0
     np.testing.assert_allclose(result.direct["floor"][mask].mean(axis=0), SKY, rtol=0.02)
+
+
+def test_caches_joined_at_once_hold_what_joining_them_pair_by_pair_held():
+    """IrradianceCache.concatenate, which a bake's hole rounds and targets join through: each column in
+    order, and a part that gathered no sky reads 0 there (the records of other rounds did gather it)."""
+    from pdic.core.irradiance_cache import IrradianceCache
+
+    rng = np.random.default_rng(2)
+
+    def part(k, sky):
+        fields = dict(p=rng.random((k, 3)), n=np.tile([0.0, 0, 1], (k, 1)), E=rng.random((k, 3)), R=rng.random(k))
+        if sky:
+            fields.update(E_sky=rng.random((k, 3)), grad_r_sky=rng.random((k, 3, 3)), grad_t_sky=rng.random((k, 3, 3)))
+        return IrradianceCache(**fields)
+
+    parts = [part(5, True), part(3, False), part(4, True)]
+    joined = IrradianceCache.concatenate(parts)
+    assert len(joined) == 12 and np.array_equal(joined.p, np.concatenate([c.p for c in parts]))
+    assert np.array_equal(joined.E_sky[:5], parts[0].E_sky) and np.array_equal(joined.E_sky[8:], parts[2].E_sky)
+    assert not joined.E_sky[5:8].any() and not joined.grad_t_sky[5:8].any()
+    assert IrradianceCache.concatenate([part(2, False), part(1, False)]).E_sky is None
