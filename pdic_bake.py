@@ -54,6 +54,9 @@ def parse_args(args: list[str]) -> argparse.Namespace:
     size = p.add_mutually_exclusive_group()
     size.add_argument("--resolution", type=int, metavar="N", help="light-map width and height for every object")
     size.add_argument("--texel-density", type=float, metavar="D", help="texels per scene unit")
+    p.add_argument("--uv-map", metavar="NAME",
+                   help="bake into each object's UV map NAME as it is laid out (your own light-map UVs; objects "
+                        "without one are unwrapped by PDIC)")
     p.add_argument("--passes", default=None, help="comma-separated: direct,indirect (default: the scene's)")
     p.add_argument("--quality", type=str.upper, choices=("PREVIEW", "FINAL", "CUSTOM"))
     p.add_argument("--photons", type=int)
@@ -245,6 +248,19 @@ def chosen_objects(bpy, args):
     return [bpy.data.objects[n] for n in args.objects]
 
 
+def use_uv_map(bpy, objects, name: str) -> None:
+    """Set Light-Map UVs to ``name`` on the meshes to bake that have a UV map of that name."""
+    candidates = objects if objects is not None else [o for o in bpy.context.view_layer.objects if o.type == "MESH"]
+    having = [o for o in candidates if o.type == "MESH" and name in o.data.uv_layers]
+    if not having:
+        raise ScriptError(f"--uv-map {name!r}: no mesh to bake has a UV map of that name")
+    for obj in having:
+        obj.pdic.uv_map = name
+    others = len([o for o in candidates if o.type == "MESH"]) - len(having)
+    print(f"pdic_bake: {len(having)} objects bake into their UV map {name!r}"
+          + (f"; {others} without one are unwrapped" if others else ""))
+
+
 def cancel_on_sigint(progress):
     """Ctrl+C cancels the bake (it stops at its next progress check and rolls back); a second one
     interrupts at once. Importing bpy replaces Python's SIGINT handler: this puts one back."""
@@ -275,6 +291,8 @@ def bake(args) -> int:
     settings = build_settings(pdic, props, args)
     objects = chosen_objects(bpy, args)
     check_save_path(bpy, args)
+    if args.uv_map:
+        use_uv_map(bpy, objects, args.uv_map)
     if args.preview_png:  # before anything is written
         preview_camera(bpy, pdic, None)
     folder = output_folder(bpy, props, args)

@@ -36,7 +36,9 @@ Schema (``schema_version`` 1)
     ``resolution_requested`` (int, the side the surface area gives; with a Texel Density the
     map grows past it until the charts fit at that density), ``texel_density_achieved`` (float,
     texels per scene unit over the mesh's surface: at least a requested Texel Density unless the
-    map would outgrow the largest light map, when the bake warns under half of it).
+    map would outgrow the largest light map, when the bake warns under half of it), ``uv_source``
+    (str, present when the object named Light-Map UVs of its own: that UV map, whose layout ``uv_map``
+    holds a copy of; ``charts`` and ``unwrap_cached`` are then absent).
 ``settings`` : dict
     The :class:`core.settings.BakeSettings` fields (see that module for units),
     keys sorted.

@@ -5,7 +5,8 @@ The job calls one hook per step, each on the step's thread:
 1. :func:`density_scales` (choose, main): each object's texel-density factor from
    its resolution override.
 2. :func:`unwrap_into_atlases` (unwrap, worker, no bpy): each mesh's own unwrap
-   (cached), then all charts packed together; the job's ``uv_loops`` get the atlas
+   (cached) or, for an object naming Light-Map UVs, its islands as they are, then all
+   charts packed together; the job's ``uv_loops`` get the atlas
    UVs (the extract step writes them into ``PDIC_Lightmap``) and its resolutions
    become each object's *window* of its atlas.
 3. :func:`window_scene` (extract, main, after extraction): each target's UVs
@@ -82,11 +83,15 @@ def unwrap_into_atlases(job, progress: Progress, hooks) -> core_atlas.AtlasLayou
     inputs, results = [], {}
     for i, (mesh_name, (name,)) in enumerate(job.mesh_users.items()):
         tris, scale = job.triangles[mesh_name], job.scales[mesh_name]
-        try:
-            result = object_charts(tris, scale, s.padding, job.cache_dir, s.max_resolution,
-                                   **hooks(mesh_name, i / len(job.mesh_users)))
-        except (ValueError, RuntimeError) as e:  # bad geometry (DegenerateMeshError), or xatlas failing
-            raise ValueError(f"cannot unwrap mesh {mesh_name!r} (object {name!r}): {e}") from e
+        if mesh_name in job.user_uvs:  # the user's islands are the charts: packed, each kept whole
+            layout = job.checked_user_layout(mesh_name, name)
+            result = unwrap.UnwrapResult(layout.uv, chart_count=0, utilization=layout.utilization)
+        else:
+            try:
+                result = object_charts(tris, scale, s.padding, job.cache_dir, s.max_resolution,
+                                       **hooks(mesh_name, i / len(job.mesh_users)))
+            except (ValueError, RuntimeError) as e:  # bad geometry (DegenerateMeshError), or xatlas failing
+                raise ValueError(f"cannot unwrap mesh {mesh_name!r} (object {name!r}): {e}") from e
         job.warnings += list(result.warnings)
         results[name] = (mesh_name, tris, result)
         inputs.append(core_atlas.AtlasInput(name, tris.positions * scale, tris.triangles, result.uv,
@@ -105,8 +110,9 @@ def unwrap_into_atlases(job, progress: Progress, hooks) -> core_atlas.AtlasLayou
             job.warnings.append(f"mesh {mesh_name!r}: {conflicts} polygon corners got split UVs")
         job.uv_loops[mesh_name] = uv_loop
         job.resolutions[p.name] = (p.window[2], p.window[3])
-        job.unwraps[p.name] = {"charts": result.chart_count, "unwrap_cached": result.from_cache,
-                               "atlas": p.atlas, "atlas_window": list(p.window)}
+        source = ({"uv_source": job.user_uvs[mesh_name][0]} if mesh_name in job.user_uvs else
+                  {"charts": result.chart_count, "unwrap_cached": result.from_cache})
+        job.unwraps[p.name] = {**source, "atlas": p.atlas, "atlas_window": list(p.window)}
     progress.update(1.0)
     return layout
 

@@ -38,7 +38,7 @@ import numpy as np
 
 from ..core import bake_cache
 from ..core import manifest as core_manifest
-from ..core import unwrap
+from ..core import unwrap, user_uvs
 from ..core.dask_executor import DaskUnavailable
 from ..core.executor import Cancelled, Progress, make_executor
 from ..core.scene import SceneError
@@ -124,6 +124,27 @@ def _blender_path(path: Path | None) -> str:
 
 def _object_settings(obj):
     return getattr(obj, "pdic", None)
+
+
+def _user_uv_map(mesh, users) -> str:
+    """The UV map of ``mesh`` its users name as Light-Map UVs ("": unwrap it); BakeError when they
+    name different maps, a map the mesh lacks, or PDIC's own (which Clear removes)."""
+    names = {getattr(_object_settings(o), "uv_map", "") for o in users}
+    if len(names) > 1:
+        raise BakeError(f"objects {', '.join(repr(o.name) for o in users)} share mesh {mesh.name!r} but name "
+                        f"different Light-Map UVs ({', '.join(repr(n or 'unwrap') for n in sorted(names))}): one "
+                        f"mesh has one light-map layout; give them the same")
+    name = names.pop()
+    if not name:
+        return ""
+    if name == uvmaps.LIGHTMAP_UV:
+        raise BakeError(f"object {users[0].name!r}: Light-Map UVs names {uvmaps.LIGHTMAP_UV!r}, the map PDIC writes "
+                        f"and Clear removes; rename your layout (e.g. 'Lightmap') and name that")
+    if name not in mesh.uv_layers:
+        have = ", ".join(repr(l.name) for l in mesh.uv_layers) or "none"
+        raise BakeError(f"object {users[0].name!r}: its Light-Map UVs {name!r} is not a UV map of mesh "
+                        f"{mesh.name!r} (its UV maps: {have})")
+    return name
 
 
 def choose_objects(view_layer, candidates) -> tuple[list, list[str], list[str]]:
@@ -298,6 +319,7 @@ class BakeJob:
         self.triangles: dict = {}       # mesh name -> uvmaps.MeshTriangles
         self.scales: dict = {}          # mesh name -> (3,) world scale of its first user
         self.uv_loops: dict = {}        # mesh name -> (loop_count, 2) light-map UVs, from the unwrap step
+        self.user_uvs: dict = {}        # mesh name -> (UV map name, (loop_count, 2) UVs): Light-Map UVs of its own
         self.extraction = None
         self.result = None
         self.report: BakeReport | None = None
@@ -412,6 +434,9 @@ class BakeJob:
             self.mesh_users[mesh.name] = [o.name for o in users]
             self.triangles[mesh.name] = tris
             self.scales[mesh.name] = np.asarray(tuple(users[0].matrix_world.to_scale()), np.float64)
+            own = _user_uv_map(mesh, users)
+            if own:
+                self.user_uvs[mesh.name] = (own, uvmaps.read_uv(mesh, own).astype(np.float64))
 
     def _choose_resolution(self, mesh_name: str) -> None:
         """Per-object override, else from the world surface area; one resolution per shared mesh."""
@@ -425,8 +450,18 @@ class BakeJob:
             else:
                 area = tris.surface_area(tuple(obj.matrix_world.to_scale()))
                 try:
-                    res = unwrap.choose_resolution(area, s.texel_density, s.default_resolution,
-                                                   s.min_resolution, s.max_resolution)
+                    if mesh_name in self.user_uvs:  # the layout is kept: the size alone sets the density
+                        uv_area = user_uvs.uv_areas(self._user_uv_corners(mesh_name)).sum()
+                        if not uv_area > 0:
+                            raise BakeError(f"object {obj.name!r}: its Light-Map UVs "
+                                            f"{self.user_uvs[mesh_name][0]!r} have no area (every corner at one "
+                                            f"point or on a line) or non-finite coordinates; lay them out, or clear Light-Map UVs to let "
+                                            f"PDIC unwrap")
+                        res = user_uvs.resolution_for(uv_area, area, s.texel_density, s.default_resolution,
+                                                      s.min_resolution, s.max_resolution)
+                    else:
+                        res = unwrap.choose_resolution(area, s.texel_density, s.default_resolution,
+                                                       s.min_resolution, s.max_resolution)
                 except ValueError as e:
                     raise BakeError(f"object {obj.name!r}: texel density {s.texel_density!r} and surface "
                                     f"area {area!r} give no light-map resolution ({e})") from e
@@ -448,40 +483,81 @@ class BakeJob:
         if self.atlas_size:
             self.atlas_layout = atlas_bake.unwrap_into_atlases(self, progress, partial(_unwrap_hooks, progress))
             return
-        s = self.settings
         for i, (mesh_name, users) in enumerate(self.mesh_users.items()):
-            tris, res = self.triangles[mesh_name], self.resolutions[users[0]][0]
-            density = 0.0 if mesh_name in self.resolution_overridden else s.texel_density
-            try:
-                result = unwrap.unwrap(tris.positions * self.scales[mesh_name], tris.triangles, res, s.padding,
-                                       cache_dir=self.cache_dir, triangle_polygon=tris.polygon,
-                                       max_resolution=max(s.max_resolution, res), texels_per_unit=density,
-                                       **_unwrap_hooks(progress, mesh_name, i / len(self.meshes)))
-                uv_loop, conflicts = unwrap.loop_uvs(result.uv, tris.loops, tris.loop_count)
-            except (ValueError, RuntimeError) as e:  # bad geometry (DegenerateMeshError), or xatlas failing to pack
-                raise BakeError(f"cannot unwrap mesh {mesh_name!r} (object {users[0]!r}): {e}") from e
-            self.warnings += list(result.warnings)
-            if result.resolution != res:  # the map grew until the charts fit (at the texel density)
-                if not density:
-                    self.warnings.append(f"mesh {mesh_name!r}: its charts do not fit {res}x{res}; light map "
-                                         f"{result.resolution}x{result.resolution} instead")
-                for name in users:
-                    self.resolutions[name] = (result.resolution, result.resolution)
-            if conflicts:
-                self.warnings.append(f"mesh {mesh_name!r}: {conflicts} polygon corners got split UVs")
-            self.uv_loops[mesh_name] = uv_loop
-            achieved = unwrap.achieved_texel_density(result.uv, tris.surface_area(self.scales[mesh_name]),
-                                                     result.resolution)
-            if density and achieved < TEXEL_DENSITY_WARN * density:
-                self.warnings.append(f"mesh {mesh_name!r}: its texels cover {achieved:.3g} per unit of the "
-                                     f"{density:g} asked: at that density its charts need a map larger than "
-                                     f"{result.resolution}x{result.resolution}, the largest light map")
-            for name in users:
-                self.unwraps[name] = {"charts": result.chart_count, "utilization": round(result.utilization, 4),
-                                      "unwrap_cached": result.from_cache, "resolution_requested": res,
-                                      "texel_density_achieved": round(achieved, 4)}
+            if mesh_name in self.user_uvs:
+                self._take_user_uvs(mesh_name, users)
+            else:
+                self._unwrap_mesh(mesh_name, users, progress, i / len(self.meshes))
             progress.update((i + 1) / len(self.meshes))
         self._check_memory()  # maps may have grown to hold the texel density
+
+    def _unwrap_mesh(self, mesh_name: str, users: list, progress: Progress, fraction: float) -> None:
+        """xatlas's charts for one mesh (positions scaled like its first user in the world)."""
+        s, tris, res = self.settings, self.triangles[mesh_name], self.resolutions[users[0]][0]
+        density = 0.0 if mesh_name in self.resolution_overridden else s.texel_density
+        try:
+            result = unwrap.unwrap(tris.positions * self.scales[mesh_name], tris.triangles, res, s.padding,
+                                   cache_dir=self.cache_dir, triangle_polygon=tris.polygon,
+                                   max_resolution=max(s.max_resolution, res), texels_per_unit=density,
+                                   **_unwrap_hooks(progress, mesh_name, fraction))
+            uv_loop, conflicts = unwrap.loop_uvs(result.uv, tris.loops, tris.loop_count)
+        except (ValueError, RuntimeError) as e:  # bad geometry (DegenerateMeshError), or xatlas failing to pack
+            raise BakeError(f"cannot unwrap mesh {mesh_name!r} (object {users[0]!r}): {e}") from e
+        self.warnings += list(result.warnings)
+        if result.resolution != res:  # the map grew until the charts fit (at the texel density)
+            if not density:
+                self.warnings.append(f"mesh {mesh_name!r}: its charts do not fit {res}x{res}; light map "
+                                     f"{result.resolution}x{result.resolution} instead")
+            for name in users:
+                self.resolutions[name] = (result.resolution, result.resolution)
+        if conflicts:
+            self.warnings.append(f"mesh {mesh_name!r}: {conflicts} polygon corners got split UVs")
+        self.uv_loops[mesh_name] = uv_loop
+        achieved = unwrap.achieved_texel_density(result.uv, tris.surface_area(self.scales[mesh_name]),
+                                                 result.resolution)
+        if density and achieved < TEXEL_DENSITY_WARN * density:
+            self.warnings.append(f"mesh {mesh_name!r}: its texels cover {achieved:.3g} per unit of the "
+                                 f"{density:g} asked: at that density its charts need a map larger than "
+                                 f"{result.resolution}x{result.resolution}, the largest light map")
+        for name in users:
+            self.unwraps[name] = {"charts": result.chart_count, "utilization": round(result.utilization, 4),
+                                  "unwrap_cached": result.from_cache, "resolution_requested": res,
+                                  "texel_density_achieved": round(achieved, 4)}
+
+    def _take_user_uvs(self, mesh_name: str, users: list) -> None:
+        """The mesh's own UV map (its users' Light-Map UVs) as its light-map layout, as it is laid out."""
+        layout = self.checked_user_layout(mesh_name, users[0])
+        tris, scale, res = self.triangles[mesh_name], self.scales[mesh_name], self.resolutions[users[0]][0]
+        self.uv_loops[mesh_name] = self.user_uvs[mesh_name][1].astype(np.float32)
+        achieved = unwrap.achieved_texel_density(layout.uv, tris.surface_area(scale), res)
+        density = 0.0 if mesh_name in self.resolution_overridden else self.settings.texel_density
+        if density and achieved < TEXEL_DENSITY_WARN * density:
+            self.warnings.append(f"mesh {mesh_name!r}: its texels cover {achieved:.3g} per unit of the {density:g} "
+                                 f"asked: its UV map {self.user_uvs[mesh_name][0]!r} needs a map larger than "
+                                 f"{res}x{res}, the largest light map")
+        for name in users:
+            self.unwraps[name] = {"uv_source": self.user_uvs[mesh_name][0], "utilization": round(layout.utilization, 4),
+                                  "resolution_requested": res, "texel_density_achieved": round(achieved, 4)}
+
+    def checked_user_layout(self, mesh_name: str, obj_name: str) -> user_uvs.UserUVLayout:
+        """The mesh's own light-map UVs checked at its map size (worker thread: no bpy); BakeError if the
+        bake cannot use them (outside 0-1, overlapping), a warning if some surface has no UV area."""
+        name, _ = self.user_uvs[mesh_name]
+        tris, res = self.triangles[mesh_name], self.resolutions[obj_name][0]
+        where = f"object {obj_name!r}: its Light-Map UVs {name!r} (mesh {mesh_name!r})"
+        try:
+            layout = user_uvs.check_layout(self._user_uv_corners(mesh_name),
+                                           tris.triangle_areas(self.scales[mesh_name]), res, where)
+        except user_uvs.UserUVError as e:
+            raise BakeError(str(e)) from e
+        if layout.unmapped_area > 0:
+            self.warnings.append(f"{where}: {100 * layout.unmapped_area:.2g} % of the surface lies on UV "
+                                 f"triangles without area and gets no texels of its own")
+        return layout
+
+    def _user_uv_corners(self, mesh_name: str) -> np.ndarray:
+        """(t, 3, 2) per-triangle-corner UVs of the mesh's own light-map UV map."""
+        return self.user_uvs[mesh_name][1][self.triangles[mesh_name].loops]
 
     # ----------------------------------------------------------------- step 3: extract (main)
     def _extract(self) -> None:

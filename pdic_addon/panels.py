@@ -12,7 +12,7 @@ Sidebar layout::
                           Quality: Preview | Final | Custom
       Settings            photons, bounces, a, hemisphere (Custom only); density/resolution, passes, seed
       Output              folder, image format
-      Active Object       bake on/off, resolution override, its light map
+      Active Object       bake on/off, resolution override, light-map UVs of its own, its light map
       Display             Original | Baked Lighting; Show Cache Records (+ zones, point size)
       Last Bake           per-pass seconds, photons, records, rays cast / saved
 """
@@ -218,6 +218,7 @@ def draw_object(layout, obj) -> None:
     sub = layout.column()
     sub.active = settings.bake
     sub.prop(settings, "resolution", text="Resolution")
+    sub.prop_search(settings, "uv_map", obj.data, "uv_layers", icon="GROUP_UVS")
     if obj.library is not None or obj.data.library is not None:
         layout.label(text="Linked from a library: skipped by the bake", icon="LIBRARY_DATA_DIRECT")
     image = next(iter(writeback.owned_images(obj)), None)

@@ -125,6 +125,10 @@ class PDIC_ObjectSettings(bpy.types.PropertyGroup):
                        description="Give this object a light map (off: it only casts shadows and bounces light)")
     resolution: IntProperty(name="Resolution Override", default=0, min=0, max=8192,
                             description="Light-map width and height for this object (0 = from the scene settings)")
+    uv_map: StringProperty(name="Light-Map UVs", default="",
+                           description="Bake into this UV map of the mesh as it is laid out (your own light-map "
+                                       "UVs: islands inside the 0-1 square, none overlapping; copied into "
+                                       "PDIC_Lightmap, yours is not changed). Empty = PDIC unwraps the mesh")
 
 
 def to_settings(props, quality: str | None = None, **overrides) -> core_settings.BakeSettings:

@@ -37,11 +37,15 @@ class MeshTriangles:
     polygon: np.ndarray
     loop_count: int
 
-    def surface_area(self, scale=(1.0, 1.0, 1.0)) -> float:
-        """Total area, scene units squared, after scaling positions by ``scale`` (3,)."""
+    def triangle_areas(self, scale=(1.0, 1.0, 1.0)) -> np.ndarray:
+        """(t,) area of each triangle, scene units squared, after scaling positions by ``scale`` (3,)."""
         p = self.positions * np.asarray(scale, dtype=np.float64)
         c = p[self.triangles]
-        return float(0.5 * np.linalg.norm(np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), axis=1).sum())
+        return 0.5 * np.linalg.norm(np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), axis=1)
+
+    def surface_area(self, scale=(1.0, 1.0, 1.0)) -> float:
+        """Total area, scene units squared, after scaling positions by ``scale`` (3,)."""
+        return float(self.triangle_areas(scale).sum())
 
 
 def mesh_triangles(mesh) -> MeshTriangles:

@@ -101,6 +101,20 @@ def test_direct_samples_option_reaches_the_bake(scene_blend, tmp_path):
     assert manifest.read_manifest(out)["settings"]["direct_samples"] == 3
 
 
+def test_uv_map_option_bakes_into_the_objects_own_layouts(scene_blend, tmp_path):
+    """--uv-map UVMap: the plane's and the cube's own UVs (a full square, the cube's unfolded cross) hold
+    their light maps as laid out; a name no mesh has is an error naming it."""
+    blend = scene_blend()
+    out = tmp_path / "maps"
+    r = run("--blend", blend, "--output", out, *FAST, "--uv-map", "UVMap")
+    assert r.returncode == 0, r.stderr
+    assert "2 objects bake into their UV map 'UVMap'" in r.stdout
+    entries = {e["name"]: e for e in manifest.read_manifest(out)["objects"]}
+    assert {n: e.get("uv_source") for n, e in entries.items()} == {"Floor": "UVMap", "Box": "UVMap"}
+    r = run("--blend", blend, "--output", tmp_path / "other", *FAST, "--uv-map", "UV2")
+    assert r.returncode == 1 and "--uv-map 'UV2': no mesh to bake has a UV map of that name" in r.stderr
+
+
 def test_save_blend_keeps_light_maps_linked_to_uv_map(scene_blend, tmp_path, blender):
     blend = scene_blend()
     saved = tmp_path / "baked.blend"

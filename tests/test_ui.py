@@ -214,7 +214,7 @@ def test_settings_survive_save_and_reload(addon, blender, tmp_path):
     for k, v in changed.items():
         setattr(props, k, v)
     box = blender.data.objects["Box"]
-    box.pdic.bake, box.pdic.resolution = False, 96
+    box.pdic.bake, box.pdic.resolution, box.pdic.uv_map = False, 96, "UVMap"
     expected_scene, expected_box = _values(props), _values(box.pdic)
     path = tmp_path / "settings.blend"
     blender.ops.wm.save_as_mainfile(filepath=str(path))
@@ -343,7 +343,7 @@ def test_object_panel_shows_its_light_map_after_a_bake(addon, blender, tmp_path)
     assert blender.ops.pdic.bake() == {"FINISHED"}
     layout = draw_panel(panels.OBJECT_PT_pdic, blender.context)
     assert f"Light map {RES}x{RES}: PDIC_Box" in layout.labels()
-    assert layout.props() == ["bake", "resolution"]
+    assert layout.props() == ["bake", "resolution", "uv_map"]
 
 
 def test_display_panel_toggles_shading_and_reflects_it(addon, blender, tmp_path):

@@ -93,6 +93,12 @@ class RecordingLayout:
         assert icon in _icons(), icon
         self.log.append(("prop", self, data, property, rna.name if text is None else text, rna))
 
+    def prop_search(self, data, property, search_data, search_property, text=None, icon="NONE", **_):
+        """Recorded as a prop; the collection searched must exist on ``search_data``."""
+        assert search_data.bl_rna.properties.get(search_property) is not None, \
+            f"{search_data.bl_rna.identifier} has no collection {search_property!r}"
+        self.prop(data, property, text=text, icon=icon)
+
     def operator(self, idname, text=None, icon="NONE", depress=False, **_):
         import bpy
         module, name = idname.split(".")
