@@ -247,8 +247,8 @@ def unwrap(positions: np.ndarray, triangles: np.ndarray, resolution: int, paddin
     if overlaps:
         raise UnwrapError(f"{overlaps} texel centres of the {result.resolution}x{result.resolution} light map lie "
                           f"inside two or more UV triangles after repair; a map of another size packs the charts "
-                          f"anew (change the object's Resolution Override or the Texel Density a little), and please "
-                          f"report this mesh")
+                          f"anew (change the object's Resolution Override or the Texel Density a little), or give the "
+                          f"object Light-Map UVs of your own; and please report this mesh")
     if path is not None:
         warning = _store(path, result)
         if warning:
@@ -340,7 +340,8 @@ def _layout_in_child(p, tri, resolution, padding, poly, max_resolution, cancelle
                                               "polygons_detached", "resolution")})
     raise UnwrapCrashed(f"xatlas crashed on this mesh with all {CHART_VARIANTS} chart-option sets "
                         f"({'; '.join(crashes)}); a known xatlas bug (jpcy/xatlas#146) on some regular meshes, "
-                        f"e.g. an ico sphere with 7 subdivisions: change the mesh (e.g. fewer subdivisions) "
+                        f"e.g. an ico sphere with 7 subdivisions: change the mesh (e.g. fewer subdivisions), give "
+                        f"the object Light-Map UVs of your own (e.g. UV > Lightmap Pack into a new UV map), "
                         f"or turn off the object's Bake Light Map (it still casts shadows and bounces light)")
 
 
