@@ -130,6 +130,17 @@ def test_a_light_map_uv_name_the_bake_cannot_take_is_an_error(blender, registere
         blender.ops.pdic.bake()
 
 
+def test_a_layout_without_area_is_refused_before_anything_changes(blender, registered, tmp_path):
+    """Every corner of the floor's Light-Map UVs at one point: no map size can give it a texel density."""
+    floor = _scene(blender)
+    floor.data.uv_layers["Lightmap"].uv.foreach_set("vector", np.full(2 * len(floor.data.loops), 0.5, np.float32))
+    _save(blender, tmp_path)
+    before = snapshot(blender)
+    with pytest.raises(RuntimeError, match="object 'Floor': its Light-Map UVs 'Lightmap' have no area"):
+        blender.ops.pdic.bake()
+    assert snapshot(blender) == before
+
+
 def test_objects_of_one_mesh_naming_different_uvs_are_an_error(blender, registered, tmp_path):
     floor = _scene(blender)
     twin = blender.data.objects.new("Twin", floor.data)
