@@ -254,7 +254,7 @@ def describe(err: dict) -> str:
 def summary(entries: list) -> dict:
     """Errors of several objects' maps as one: their texels stacked in one strip; the 8x8-block error is
     each object's, weighted by its texels. entries : (test, C1, C2, compared mask, texels both bake)."""
-    per_texel, blocks, dark_in_cycles, dark_in_pdic, count = [], [], 0, 0, 0
+    blocks, dark_in_cycles, dark_in_pdic, count = [], 0, 0, 0
     P_all, A_all, B_all = [], [], []
     for P, C1, C2, baked, centre in entries:
         P_all.append(P[baked]), A_all.append(C1[baked]), B_all.append(C2[baked])
