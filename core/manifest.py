@@ -38,7 +38,8 @@ Schema (``schema_version`` 1)
     texels per scene unit over the mesh's surface: at least a requested Texel Density unless the
     map would outgrow the largest light map, when the bake warns under half of it), ``uv_source``
     (str, present when the object named Light-Map UVs of its own: that UV map, whose layout ``uv_map``
-    holds a copy of; ``charts`` and ``unwrap_cached`` are then absent).
+    holds a copy of; ``charts`` and ``unwrap_cached`` are then absent, and ``texel_density_median``, float,
+    the texels per scene unit at the area-weighted median of its triangles', is present).
 ``settings`` : dict
     The :class:`core.settings.BakeSettings` fields (see that module for units),
     keys sorted.

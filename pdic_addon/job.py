@@ -455,8 +455,8 @@ class BakeJob:
                         if not uv_area > 0:
                             raise BakeError(f"object {obj.name!r}: its Light-Map UVs "
                                             f"{self.user_uvs[mesh_name][0]!r} have no area (every corner at one "
-                                            f"point or on a line) or non-finite coordinates; lay them out, or clear Light-Map UVs to let "
-                                            f"PDIC unwrap")
+                                            f"point or on a line) or non-finite coordinates; lay them out, or "
+                                            f"clear Light-Map UVs to let PDIC unwrap")
                         res = user_uvs.resolution_for(uv_area, area, s.texel_density, s.default_resolution,
                                                       s.min_resolution, s.max_resolution)
                     else:
@@ -531,13 +531,20 @@ class BakeJob:
         self.uv_loops[mesh_name] = self.user_uvs[mesh_name][1].astype(np.float32)
         achieved = unwrap.achieved_texel_density(layout.uv, tris.surface_area(scale), res)
         density = 0.0 if mesh_name in self.resolution_overridden else self.settings.texel_density
+        own = self.user_uvs[mesh_name][0]
         if density and achieved < TEXEL_DENSITY_WARN * density:
             self.warnings.append(f"mesh {mesh_name!r}: its texels cover {achieved:.3g} per unit of the {density:g} "
-                                 f"asked: its UV map {self.user_uvs[mesh_name][0]!r} needs a map larger than "
-                                 f"{res}x{res}, the largest light map")
+                                 f"asked: its UV map {own!r} needs a map larger than {res}x{res}, the largest light "
+                                 f"map")
+        elif density and layout.density_median < user_uvs.UNEVEN_DENSITY * achieved:
+            self.warnings.append(f"mesh {mesh_name!r}: half of its surface gets under {layout.density_median:.3g} "
+                                 f"texels per unit of the {density:g} asked: the islands of its UV map {own!r} are "
+                                 f"not scaled to their surface (small faces take the room); UV > Average Islands "
+                                 f"Scale, then Pack Islands, evens them")
         for name in users:
-            self.unwraps[name] = {"uv_source": self.user_uvs[mesh_name][0], "utilization": round(layout.utilization, 4),
-                                  "resolution_requested": res, "texel_density_achieved": round(achieved, 4)}
+            self.unwraps[name] = {"uv_source": own, "utilization": round(layout.utilization, 4),
+                                  "resolution_requested": res, "texel_density_achieved": round(achieved, 4),
+                                  "texel_density_median": round(layout.density_median, 4)}
 
     def checked_user_layout(self, mesh_name: str, obj_name: str) -> user_uvs.UserUVLayout:
         """The mesh's own light-map UVs checked at its map size (worker thread: no bpy); BakeError if the

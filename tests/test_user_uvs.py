@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from pdic.core import manifest
-from pdic.core.user_uvs import UserUVError, check_layout, resolution_for, uv_areas
+from pdic.core.user_uvs import (UserUVError, area_weighted_median, check_layout, resolution_for, texel_densities,
+                                uv_areas)
 from pdic.pdic_addon import job as job_module
 from pdic.pdic_addon.uvmaps import LIGHTMAP_UV, read_uv
 from snapshot import snapshot
@@ -37,6 +38,16 @@ def test_surface_without_uv_area_is_measured_as_unmapped():
     uv = np.concatenate([SQUARE, np.full((1, 3, 2), 0.5, np.float32)])
     layout = check_layout(uv, np.array([1.0, 1.0, 2.0]), 16, "x")
     assert layout.unmapped_area == pytest.approx(0.5)
+
+
+def test_each_triangle_gets_the_density_of_its_share_of_the_map():
+    """Two triangles of 2 units^2 each on UV areas 0.32 and 0.02 of a 100^2 map: sqrt(3200 / 2) = 40 and
+    sqrt(200 / 2) = 10 texels per unit; half the surface has 10 or less, so the median is 10."""
+    density = texel_densities(np.array([0.32, 0.02]), np.array([2.0, 2.0]), 100)
+    np.testing.assert_allclose(density, [40.0, 10.0])
+    assert area_weighted_median(density, np.array([2.0, 2.0])) == 10.0
+    assert area_weighted_median(density, np.array([3.0, 1.0])) == 40.0
+    assert area_weighted_median(np.zeros(0), np.zeros(0)) == 0.0
 
 
 def test_the_map_size_gives_the_layout_the_texel_density():
@@ -98,9 +109,33 @@ def test_a_bake_into_the_users_layout_keeps_it_and_lights_it_right(blender, regi
     entries = {e["name"]: e for e in manifest.read_manifest(tmp_path / "pdic_lightmaps")["objects"]}
     assert entries["Floor"]["uv_source"] == "Lightmap" and "charts" not in entries["Floor"]
     assert entries["Floor"]["texel_density_achieved"] == pytest.approx(8.0, rel=1e-3)
+    assert entries["Floor"]["texel_density_median"] == pytest.approx(8.0, rel=1e-3)
+    assert not any("not scaled" in w for w in manifest.read_manifest(tmp_path / "pdic_lightmaps")["warnings"])
     assert entries["Box"]["charts"] >= 1 and "uv_source" not in entries["Box"]
     assert blender.ops.pdic.clear() == {"FINISHED"}
     assert snapshot(blender) == before
+
+
+def test_a_layout_not_scaled_to_its_surface_is_reported(blender, registered, tmp_path):
+    """The floor's two triangles (18 units^2 each) laid out on UV areas 0.32 and 0.04 either side of their
+    shared diagonal: half the surface gets sqrt((0.04 / 18) / (0.36 / 36)) = 0.47 of the density the map
+    gives the layout on average; the bake warns and the manifest holds the median."""
+    floor = _scene(blender)
+    mesh = floor.data
+    mesh.calc_loop_triangles()
+    first, second = (set(t.loops) for t in mesh.loop_triangles)
+    s0, s1 = sorted(first & second)
+    uv = np.zeros((len(mesh.loops), 2), np.float32)
+    uv[s0], uv[s1] = (0.05, 0.05), (0.85, 0.85)
+    a, b = (first - second).pop(), (second - first).pop()
+    uv[a], uv[b] = (0.05, 0.85), (0.5, 0.4)  # above the diagonal and below it: no overlap
+    mesh.uv_layers["Lightmap"].uv.foreach_set("vector", uv.ravel())
+    _save(blender, tmp_path)
+    assert blender.ops.pdic.bake() == {"FINISHED"}
+    doc = manifest.read_manifest(tmp_path / "pdic_lightmaps")
+    entry = next(e for e in doc["objects"] if e["name"] == "Floor")
+    assert entry["texel_density_median"] == pytest.approx(0.47 * entry["texel_density_achieved"], rel=0.02)
+    assert any("'Lightmap' are not scaled to their surface" in w for w in doc["warnings"]), doc["warnings"]
 
 
 def test_overlapping_user_uvs_stop_the_bake_naming_object_and_map(blender, registered, tmp_path):
