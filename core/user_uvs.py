@@ -24,8 +24,9 @@ OUTSIDE_TOLERANCE = 1e-6
 UNEVEN_DENSITY = 0.8
 """A layout whose surface gets, at its area-weighted median, under this fraction of the Texel Density
 asked has islands not scaled to their surface (Blender's Lightmap Pack gives Sponza's large faces a median
-5.65 texels/m in a map sized for 8 on average; over them its camera error is 4.2 % against 3.2 % in
-PDIC's uniform unwrap, bench/README.md): the bake says so."""
+5.65 texels/m in a map sized for 8 on average; over the camera pixels away from its islands' edges,
+mostly on those faces, its error is 4.2 % against 3.2 % in PDIC's uniform unwrap, bench/README.md): the
+bake says so."""
 
 
 class UserUVError(ValueError):
