@@ -104,6 +104,13 @@ def choose_resolution(surface_area: float, texel_density: float, default_resolut
     return int(min(max(texels, min_resolution), max_resolution))
 
 
+def uv_areas(uv: np.ndarray) -> np.ndarray:
+    """(t,) area of each UV triangle of ``uv`` (t, 3, 2), in units of the whole map (float64)."""
+    uv = np.asarray(uv, np.float64)
+    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    return 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+
+
 def achieved_texel_density(uv: np.ndarray, surface_area: float, resolution: int) -> float:
     """Texels per scene unit the unwrap gave, area-weighted over the mesh: sqrt(texels on triangles /
     surface area). Below the requested density when charts leave part of the map empty (padding,
@@ -112,8 +119,7 @@ def achieved_texel_density(uv: np.ndarray, surface_area: float, resolution: int)
     uv : (t, 3, 2) per-corner UVs in [0, 1]; surface_area : the mesh's area, scene units squared.
     """
     world = float(surface_area)
-    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-    uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
+    uv_area = uv_areas(uv).sum()
     if not (world > 0 and np.isfinite(world) and np.isfinite(uv_area)):
         return 0.0
     return float(np.sqrt(uv_area * resolution * resolution / world))

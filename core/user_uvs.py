@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .unwrap import uv_areas
 from .uv_overlap import uv_overlaps
 
 OUTSIDE_TOLERANCE = 1e-6
@@ -51,13 +52,6 @@ class UserUVLayout:
     utilization: float
     unmapped_area: float
     density_median: float = 0.0
-
-
-def uv_areas(uv: np.ndarray) -> np.ndarray:
-    """(t,) area of each UV triangle of ``uv`` (t, 3, 2), in units of the whole map."""
-    uv = np.asarray(uv, np.float64)
-    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-    return 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
 
 
 def resolution_for(uv_area: float, surface_area: float, texel_density: float, default_resolution: int,
@@ -112,7 +106,7 @@ def check_layout(uv: np.ndarray, triangle_area: np.ndarray, resolution: int, whe
 
 def texel_densities(uv_area: np.ndarray, triangle_area: np.ndarray, resolution: int) -> np.ndarray:
     """(t,) texels per scene unit on each triangle: sqrt(its texels / its world area); 0 without world area.
-    uv_area : (t,) UV areas in units of the map (:func:`uv_areas`); triangle_area : (t,) scene units^2."""
+    uv_area : (t,) UV areas in units of the map (:func:`core.unwrap.uv_areas`); triangle_area : (t,) scene units^2."""
     texels = np.asarray(uv_area, np.float64) * float(resolution) ** 2
     world = np.asarray(triangle_area, np.float64)
     return np.sqrt(np.divide(texels, world, out=np.zeros_like(world), where=world > 0))

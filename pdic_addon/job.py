@@ -451,7 +451,7 @@ class BakeJob:
                 area = tris.surface_area(tuple(obj.matrix_world.to_scale()))
                 try:
                     if mesh_name in self.user_uvs:  # the layout is kept: the size alone sets the density
-                        uv_area = user_uvs.uv_areas(self._user_uv_corners(mesh_name)).sum()
+                        uv_area = unwrap.uv_areas(self._user_uv_corners(mesh_name)).sum()
                         if not uv_area > 0:
                             raise BakeError(f"object {obj.name!r}: its Light-Map UVs "
                                             f"{self.user_uvs[mesh_name][0]!r} have no area (every corner at one "
@@ -494,7 +494,7 @@ class BakeJob:
     def _unwrap_mesh(self, mesh_name: str, users: list, progress: Progress, fraction: float) -> None:
         """xatlas's charts for one mesh (positions scaled like its first user in the world)."""
         s, tris, res = self.settings, self.triangles[mesh_name], self.resolutions[users[0]][0]
-        density = 0.0 if mesh_name in self.resolution_overridden else s.texel_density
+        density = self._density_asked(mesh_name)
         try:
             result = unwrap.unwrap(tris.positions * self.scales[mesh_name], tris.triangles, res, s.padding,
                                    cache_dir=self.cache_dir, triangle_polygon=tris.polygon,
@@ -515,10 +515,8 @@ class BakeJob:
         self.uv_loops[mesh_name] = uv_loop
         achieved = unwrap.achieved_texel_density(result.uv, tris.surface_area(self.scales[mesh_name]),
                                                  result.resolution)
-        if density and achieved < TEXEL_DENSITY_WARN * density:
-            self.warnings.append(f"mesh {mesh_name!r}: its texels cover {achieved:.3g} per unit of the "
-                                 f"{density:g} asked: at that density its charts need a map larger than "
-                                 f"{result.resolution}x{result.resolution}, the largest light map")
+        self._warn_below_density(mesh_name, achieved, density, "at that density its charts need",
+                                 result.resolution)
         for name in users:
             self.unwraps[name] = {"charts": result.chart_count, "utilization": round(result.utilization, 4),
                                   "unwrap_cached": result.from_cache, "resolution_requested": res,
@@ -530,13 +528,9 @@ class BakeJob:
         tris, scale, res = self.triangles[mesh_name], self.scales[mesh_name], self.resolutions[users[0]][0]
         self.uv_loops[mesh_name] = self.user_uvs[mesh_name][1].astype(np.float32)
         achieved = unwrap.achieved_texel_density(layout.uv, tris.surface_area(scale), res)
-        density = 0.0 if mesh_name in self.resolution_overridden else self.settings.texel_density
-        own = self.user_uvs[mesh_name][0]
-        if density and achieved < TEXEL_DENSITY_WARN * density:
-            self.warnings.append(f"mesh {mesh_name!r}: its texels cover {achieved:.3g} per unit of the {density:g} "
-                                 f"asked: its UV map {own!r} needs a map larger than {res}x{res}, the largest light "
-                                 f"map")
-        elif density and layout.density_median < user_uvs.UNEVEN_DENSITY * achieved:
+        density, own = self._density_asked(mesh_name), self.user_uvs[mesh_name][0]
+        too_small = self._warn_below_density(mesh_name, achieved, density, f"its UV map {own!r} needs", res)
+        if density and not too_small and layout.density_median < user_uvs.UNEVEN_DENSITY * achieved:
             self.warnings.append(f"mesh {mesh_name!r}: half of its surface gets under {layout.density_median:.3g} "
                                  f"texels per unit of the {density:g} asked: the islands of its UV map {own!r} are "
                                  f"not scaled to their surface (small faces take the room); UV > Average Islands "
@@ -545,6 +539,19 @@ class BakeJob:
             self.unwraps[name] = {"uv_source": own, "utilization": round(layout.utilization, 4),
                                   "resolution_requested": res, "texel_density_achieved": round(achieved, 4),
                                   "texel_density_median": round(layout.density_median, 4)}
+
+    def _density_asked(self, mesh_name: str) -> float:
+        """The Texel Density the mesh's map is meant to hold (0: its size is a user's Resolution Override)."""
+        return 0.0 if mesh_name in self.resolution_overridden else self.settings.texel_density
+
+    def _warn_below_density(self, mesh_name: str, achieved: float, density: float, needs: str, res: int) -> bool:
+        """Warn (and say True) when the map, ``res`` texels a side, holds under TEXEL_DENSITY_WARN of the density
+        asked; ``needs`` says what needs a larger map than that, the largest (e.g. "its UV map 'UV2' needs")."""
+        if not (density and achieved < TEXEL_DENSITY_WARN * density):
+            return False
+        self.warnings.append(f"mesh {mesh_name!r}: its texels cover {achieved:.3g} per unit of the {density:g} "
+                             f"asked: {needs} a map larger than {res}x{res}, the largest light map")
+        return True
 
     def checked_user_layout(self, mesh_name: str, obj_name: str) -> user_uvs.UserUVLayout:
         """The mesh's own light-map UVs checked at its map size (worker thread: no bpy); BakeError if the

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from pdic.core import manifest
-from pdic.core.user_uvs import (UserUVError, area_weighted_median, check_layout, resolution_for, texel_densities,
-                                uv_areas)
+from pdic.core.unwrap import uv_areas
+from pdic.core.user_uvs import UserUVError, area_weighted_median, check_layout, resolution_for, texel_densities
 from pdic.pdic_addon import job as job_module
 from pdic.pdic_addon.uvmaps import LIGHTMAP_UV, read_uv
 from snapshot import snapshot
