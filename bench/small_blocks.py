@@ -22,8 +22,8 @@ per point), which says whose value it is:
 - *coincident faces*: another face passes within two ray offsets of a texel's samples
   (``bench.run.comparable_texels``): Cycles' bake rays, which leave the surface with no offset, meet it;
   PDIC's and the path tracer's do not (bench/coincident.py);
-- *Cycles alone*: the path tracer over Cycles' own footprint is within 20 % of PDIC;
-- *PDIC*: the path tracer is within 20 % of Cycles, not of PDIC.
+- *tracer with PDIC*: the path tracer over Cycles' own footprint is nearer PDIC's value than Cycles';
+- *PDIC's own*: it is nearer Cycles'.
 """
 from __future__ import annotations
 
@@ -45,6 +45,9 @@ SMALL = 16
 """A block holding fewer judged texels than this (of 64) is small: it lies at a chart's edge."""
 DENSITY = 4.0
 """Texels per metre of the held scenes (bench/converged_references.py ``PLAN``)."""
+REFEREE_POINTS = 8
+"""Jittered points per axis over a texel's footprint that the path tracer traces (a sliver's texel keeps the
+few of the 64 that land on its triangle: with 4 per axis, 1-3)."""
 RESTRICT_UV = "PDIC_SmallBlocks"
 """The layer copy the restricted pair bakes into (removed with the scene: the bench's blend is not saved)."""
 
@@ -136,7 +139,7 @@ def judged_blocks(indirect: np.ndarray, mask: np.ndarray, reference: list, small
     return dict(judged=judged & small & whole, rel=rel, seeds=seeds, pdic=pdic, ref=ref)
 
 
-def verdict(pdic: float, traced: float, seeds: float, dark: int, coincident: int) -> str:
+def verdict(pdic: float, cycles: float, traced: float, seeds: float, dark: int, coincident: int) -> str:
     """Whose value a block off from the converged pair holds (the module's docstring)."""
     if seeds > BLOCK_OFF:
         return "reference noise"
@@ -144,9 +147,7 @@ def verdict(pdic: float, traced: float, seeds: float, dark: int, coincident: int
         return "partly inside"
     if coincident:
         return "coincident faces"
-    if abs(pdic / max(traced, 1e-30) - 1.0) <= BLOCK_OFF:
-        return "Cycles alone"
-    return "PDIC"
+    return "tracer with PDIC" if abs(pdic - traced) < abs(cycles - traced) else "PDIC's own"
 
 
 def referee(scene, mask: np.ndarray, blocks: list, paths: int, seed: int) -> list:
@@ -161,7 +162,7 @@ def referee(scene, mask: np.ndarray, blocks: list, paths: int, seed: int) -> lis
         cells = np.zeros(mask.shape, bool)
         cells[by * BLOCK:(by + 1) * BLOCK, bx * BLOCK:(bx + 1) * BLOCK] = True
         texels = np.flatnonzero((cells & mask).ravel())
-        texel, p, n = cycles_footprint(scene, 0, texels, 4, rng, False)
+        texel, p, n = cycles_footprint(scene, 0, texels, REFEREE_POINTS, rng, False)
         mean, se = mean_indirect(scene, caster, p, n, paths, rng)
         traced, traced_se = _traced_per_texel(texels, texel, mean, se)
         dark = int((mean.mean(axis=1) < 1e-4).sum())
@@ -208,7 +209,7 @@ def main(argv=None):
         for (by, bx), (traced, se, dark, points) in zip(off, referee(scene, mask, off, args.paths, seed + 13)):
             block = (slice(by * BLOCK, (by + 1) * BLOCK), slice(bx * BLOCK, (bx + 1) * BLOCK))
             coincident = int((mask[block] & ~comparable[block]).sum())
-            why = verdict(fine["pdic"][by, bx], traced, fine["seeds"][by, bx], dark, coincident)
+            why = verdict(fine["pdic"][by, bx], fine["ref"][by, bx], traced, fine["seeds"][by, bx], dark, coincident)
             counts[why] = counts.get(why, 0) + 1
             print(f"  {by:4d} {bx:4d} {fill[by, bx]:2d} texels  PDIC {fine['pdic'][by, bx]:.4f}  Cycles "
                   f"{fine['ref'][by, bx]:.4f} (seeds {fine['seeds'][by, bx]:.0%} apart)  traced {traced:.4f} +- "
