@@ -43,8 +43,6 @@ from pdic.bench.competitors import BLOCK, BLOCK_OFF, block_differences, pad_to_b
 
 SMALL = 16
 """A block holding fewer judged texels than this (of 64) is small: it lies at a chart's edge."""
-DENSITY = 4.0
-"""Texels per metre of the held scenes (bench/converged_references.py ``PLAN``)."""
 REFEREE_POINTS = 8
 """Jittered points per axis over a texel's footprint that the path tracer traces (a sliver's texel keeps the
 few of the 64 that land on its triangle: with 4 per axis, 1-3)."""
@@ -106,7 +104,7 @@ def restricted_pair(name: str, blocks: np.ndarray, spp: int, path: Path) -> tupl
     from pdic.pdic_addon.uvmaps import LIGHTMAP_UV
 
     if not path.exists():
-        objects, scene = refs.one_object_scene(name, DENSITY, refs.SCENES / "cache" / name)
+        objects, scene = refs.one_object_scene(name, refs.PLAN[name]["density"], refs.SCENES / "cache" / name)
         held = convergence.load(name)[0]
         if not np.array_equal(scene.targets[0].lightmap_uv, held.targets[0].lightmap_uv):
             raise SystemExit(f"{name}: today's unwrap differs from the held scene's: bake the references again")
