@@ -101,27 +101,47 @@ def restricted_pair(name: str, blocks: np.ndarray, spp: int, path: Path) -> tupl
     ``path`` when baked before."""
     from bench import converged_references as refs
     from bench import convergence
-    from pdic.pdic_addon.uvmaps import LIGHTMAP_UV
 
     if not path.exists():
         objects, scene = refs.one_object_scene(name, refs.PLAN[name]["density"], refs.SCENES / "cache" / name)
         held = convergence.load(name)[0]
         if not np.array_equal(scene.targets[0].lightmap_uv, held.targets[0].lightmap_uv):
             raise SystemExit(f"{name}: today's unwrap differs from the held scene's: bake the references again")
-        ob, target = objects[0], scene.targets[0]
-        uv = np.empty(len(ob.data.loops) * 2, np.float32)
-        ob.data.uv_layers[LIGHTMAP_UV].data.foreach_get("uv", uv)
-        loop_total = np.empty(len(ob.data.polygons), np.int64)
-        ob.data.polygons.foreach_get("loop_total", loop_total)
-        keep = polygons_touching(uv.reshape(-1, 2), loop_total, target.width, target.height, blocks)
-        restricted_layer(ob.data, LIGHTMAP_UV, keep, target.width, target.height)
-        print(f"{name}: {int(blocks.sum())} small blocks, {int(keep.sum())} of {len(keep)} polygons baked", flush=True)
-        pair, seconds = refs.seed_pair([ob], RESTRICT_UV, {ob.name: (target.width, target.height)}, spp)
-        for bake in pair:  # keyed by the core scene's target, as the other references
-            bake["images"] = {target.name: bake["images"].pop(ob.name)}
-            bake["coverage"] = {target.name: bake["coverage"].pop(ob.name)}
-        refs.save_pair(path, pair, seconds, averaged=False)
+        restricted_bake(objects[0], scene.targets[0], blocks, spp, path)
     return bench_run.reference_pair(path)
+
+
+def restricted_bake(ob, target, blocks: np.ndarray, spp: int, path: Path) -> None:
+    """Bake Cycles' INDIRECT pair (seeds 1, 2) of mesh object ``ob`` on its polygons touching ``blocks`` of its
+    core ``target`` (the object as the add-on extracted it, its ``PDIC_Lightmap`` written back) and save it
+    to ``path`` (bench/converged_references.py ``save_pair``, keyed by the target's name)."""
+    from bench import converged_references as refs
+    from pdic.pdic_addon.uvmaps import LIGHTMAP_UV
+
+    uv = np.empty(len(ob.data.loops) * 2, np.float32)
+    ob.data.uv_layers[LIGHTMAP_UV].data.foreach_get("uv", uv)
+    loop_total = np.empty(len(ob.data.polygons), np.int64)
+    ob.data.polygons.foreach_get("loop_total", loop_total)
+    keep = polygons_touching(uv.reshape(-1, 2), loop_total, target.width, target.height, blocks)
+    restricted_layer(ob.data, LIGHTMAP_UV, keep, target.width, target.height)
+    print(f"{ob.name}: {int(blocks.sum())} small blocks, {int(keep.sum())} of {len(keep)} polygons baked", flush=True)
+    pair, seconds = refs.seed_pair([ob], RESTRICT_UV, {ob.name: (target.width, target.height)}, spp)
+    for bake in pair:  # keyed by the core scene's target, as the other references
+        bake["images"] = {target.name: bake["images"].pop(ob.name)}
+        bake["coverage"] = {target.name: bake["coverage"].pop(ob.name)}
+    refs.save_pair(path, pair, seconds, averaged=False)
+
+
+def cathedral(detail: float, resolution: int, out: str) -> tuple:
+    """(the cathedral object of bench/cathedral_indirect.py, baked once through the add-on so its
+    ``PDIC_Lightmap`` is written back, the core scene the add-on extracted, the reference's file name)."""
+    from bench.cathedral_indirect import bake_final, prepare, scene_digest
+    from pdic.pdic_addon import writeback
+
+    folder, ob = prepare(out, detail)
+    job = bake_final(folder, resolution, 0)
+    writeback.set_shading([ob], baked=False)  # Cycles bakes the object's own material, not the light map's
+    return ob, job.extraction.scene, f"cathedral_d{detail:g}_{scene_digest(ob)}_{resolution}"
 
 
 def judged_blocks(indirect: np.ndarray, mask: np.ndarray, reference: list, small: np.ndarray) -> dict:
@@ -170,7 +190,11 @@ def referee(scene, mask: np.ndarray, blocks: list, paths: int, seed: int) -> lis
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--scene", default="sponza_held", help="a held converged scene (bench/convergence.py)")
+    ap.add_argument("--scene", default="sponza_held", help="a held converged scene (bench/convergence.py), or "
+                    "cathedral (bench/cathedral_indirect.py's, baked through the add-on)")
+    ap.add_argument("--detail", type=float, default=0.3, help="the cathedral's detail")
+    ap.add_argument("--res", type=int, default=512, help="the cathedral's light-map side")
+    ap.add_argument("--out", default="/tmp/pdic_small_blocks", help="the cathedral's output folder")
     ap.add_argument("--spp", type=int, default=4096, help="Cycles samples per bake of the restricted pair")
     ap.add_argument("--seeds", default="0,1", help="PDIC Final seeds judged")
     ap.add_argument("--paths", type=int, default=1024, help="path-traced paths per footprint point")
@@ -180,29 +204,41 @@ def main(argv=None):
     from pdic.core.settings import preset
     from pdic.core.texels import lift_texels
 
-    scene, pair, _ = convergence.load(args.scene)
+    if args.scene == "cathedral":
+        ob, scene, label = cathedral(args.detail, args.res, args.out)
+        pair = None
+    else:
+        (scene, pair, _), label = convergence.load(args.scene), args.scene
     name = scene.targets[0].name
     centre = lift_texels(scene, 1)[1][0].centre_inside
     comparable = bench_run.comparable_texels(scene, preset("FINAL").texel_samples)[name]
-    held = pair[0]["coverage"][name] & pair[1]["coverage"][name]
-    small = block_fill(held & centre) < SMALL
-    path = bench_run.REFERENCES / f"{args.scene}_small_blocks_{args.spp}x2_64_INDIRECT.npz"
-    converged, noise = restricted_pair(args.scene, small & (block_fill(held & centre) > 0), args.spp, path)
-    print(f"{args.scene}: restricted pair {args.spp} spp x 2, noise {noise:.1%} per texel", flush=True)
+    # Cycles bakes the texels whose centre lies on a triangle: the held pair's coverage, or those centres
+    held = centre if pair is None else pair[0]["coverage"][name] & pair[1]["coverage"][name] & centre
+    blocks = (block_fill(held) > 0) & (block_fill(held) < SMALL)
+    path = bench_run.REFERENCES / f"{label}_small_blocks_{args.spp}x2_64_INDIRECT.npz"
+    if pair is None:
+        if not path.exists():
+            restricted_bake(ob, scene.targets[0], blocks, args.spp, path)
+        converged, noise = bench_run.reference_pair(path)
+    else:
+        converged, noise = restricted_pair(args.scene, blocks, args.spp, path)
+    print(f"{label}: restricted pair {args.spp} spp x 2, noise {noise:.1%} per texel", flush=True)
     for seed in (int(s) for s in args.seeds.split(",")):
         result = bake(scene, replace(preset("FINAL"), seed=seed))
         mask = held & result.centre_inside[name] & ~result.buried[name]
         fill = block_fill(mask)
         small_judged = (fill > 0) & (fill < SMALL)
-        coarse = judged_blocks(result.indirect[name], mask, pair, small_judged)
         fine = judged_blocks(result.indirect[name], mask, converged, small_judged)
-        judged = coarse["judged"] & fine["judged"]
+        judged, held_off = fine["judged"], ""
+        if pair is not None:
+            coarse = judged_blocks(result.indirect[name], mask, pair, small_judged)
+            judged = judged & coarse["judged"]
+            held_off = (f" (from the held pair {int((judged & (coarse['rel'] > BLOCK_OFF)).sum())}, whose own seeds "
+                        f"are {BLOCK_OFF:.0%} apart at {int((judged & (coarse['seeds'] > BLOCK_OFF)).sum())})")
         off = [tuple(b) for b in np.argwhere(judged & (fine["rel"] > BLOCK_OFF))]
-        seeds_off = [int((judged & (j["seeds"] > BLOCK_OFF)).sum()) for j in (coarse, fine)]
-        print(f"seed {seed}: {int(judged.sum())} small blocks judged; off by more than {BLOCK_OFF:.0%}: "
-              f"PDIC from the held pair {int((judged & (coarse['rel'] > BLOCK_OFF)).sum())}, from the "
-              f"{args.spp}-spp pair {len(off)}; the held pair's seeds {seeds_off[0]}, the {args.spp}-spp "
-              f"pair's {seeds_off[1]}", flush=True)
+        print(f"seed {seed}: {int(judged.sum())} small blocks judged; PDIC off by more than {BLOCK_OFF:.0%} from the "
+              f"{args.spp}-spp pair at {len(off)}{held_off}; the {args.spp}-spp pair's seeds are that far apart at "
+              f"{int((judged & (fine['seeds'] > BLOCK_OFF)).sum())}", flush=True)
         counts: dict = {}
         for (by, bx), (traced, se, dark, points) in zip(off, referee(scene, mask, off, args.paths, seed + 13)):
             block = (slice(by * BLOCK, (by + 1) * BLOCK), slice(bx * BLOCK, (bx + 1) * BLOCK))
