@@ -1,6 +1,7 @@
 """Small 8x8 blocks judged against a converged Cycles reference baked on them alone.
 
     .venv/bin/python bench/small_blocks.py [--scene sponza_held] [--spp 4096] [--seeds 0,1] [--paths 1024]
+    .venv/bin/python bench/small_blocks.py --scene cathedral [--detail 0.3] [--res 512]
 
 Issue #11 asks that no 8x8-texel block of the indirect light be off by more than 20 %. Blocks at a chart's
 edge hold one to fifteen texels (Sponza held at 4 texels/m: 2,396 of 3,370), and a 512-spp reference pair
@@ -10,11 +11,13 @@ whole map at 4,096 spp would take Cycles about 35 minutes here; this bench bakes
 onto one point in a copy of the layer, so they cover no texel but still cast shadows and reflect light;
 Cycles' per-texel random numbers depend on the texel and the seed only, so a texel comes out as in the full
 bake, tests/test_small_blocks.py). The pair (seeds 1 and 2, 64 diffuse bounces, no clamping) is cached in
-bench/references/{scene}_small_blocks_{spp}x2_64_INDIRECT.npz.
+bench/references/{scene}_small_blocks_{spp}x2_64_INDIRECT.npz (the cathedral's named by its detail, its mesh's
+digest and its map's side; it has no held pair, so Cycles' coverage is taken as the texels whose centre lies
+on a triangle).
 
-PDIC Final (each ``--seeds``) is judged on the small blocks against both pairs, and every block still off
-from the converged pair is traced by bench/path_referee.py over Cycles' footprint of its texels (``--paths``
-per point), which says whose value it is:
+PDIC Final (each ``--seeds``) is judged on the small blocks against the held pair, if any, and the converged one;
+every block still off from the converged pair is traced by bench/path_referee.py over Cycles' footprint of
+its texels (``--paths`` per point), which says whose value it is:
 
 - *reference noise*: the converged pair's own seeds are more than 20 % apart there;
 - *partly inside*: some of the footprint's points lie inside closed geometry (traced black), which Cycles
