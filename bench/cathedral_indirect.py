@@ -40,7 +40,7 @@ import bpy  # noqa: E402
 
 import cycles_reference as cr  # noqa: E402
 from bench.cathedral_direct import part, prepare, texel_geometry  # noqa: E402
-from bench.competitors import BLOCK, BLOCK_OFF as OFF, block_differences, errors  # noqa: E402
+from bench.competitors import BLOCK, BLOCK_OFF as OFF, block_counts, block_differences, errors  # noqa: E402
 from bench.run import texel_masks  # noqa: E402
 from test_cathedral_direct_vs_cycles import ALBEDO  # noqa: E402
 from pdic.pdic_addon import job as job_module  # noqa: E402
@@ -153,9 +153,8 @@ def main(argv=None):
 def blocks_off(P: np.ndarray, reference: np.ndarray, mask: np.ndarray, label: str):
     """Print how many judged 8x8 blocks of ``mask``'s texels are off by more than OFF; return (each block's
     relative difference (0 where not judged), PDIC's and the reference's block luminance, texels per block)."""
-    H, W = mask.shape
     rel, judged, lp, lc = block_differences(P, reference, mask)
-    count = mask.reshape(H // BLOCK, BLOCK, W // BLOCK, BLOCK).sum(axis=(1, 3))
+    count = block_counts(mask)
     off = judged & (rel > OFF)
     print(f"{label}8x8 blocks judged {int(judged.sum()):,} of {int((count > 0).sum()):,}; off by > {OFF:.0%}: "
           f"{int(off.sum())} ({off.sum() / max(judged.sum(), 1):.2%}); worst {rel.max():.1%}")

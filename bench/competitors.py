@@ -118,6 +118,12 @@ def pad_to_blocks(image: np.ndarray, factor: int) -> np.ndarray:
     return np.pad(image, pad)
 
 
+def block_counts(mask: np.ndarray, factor: int = BLOCK) -> np.ndarray:
+    """(H/f, W/f) int: the texels of ``mask`` (H, W) bool each f x f block holds (the map zero-padded)."""
+    m = pad_to_blocks(mask, factor)
+    return m.reshape(m.shape[0] // factor, factor, m.shape[1] // factor, factor).sum(axis=(1, 3))
+
+
 def block_means(image: np.ndarray, mask: np.ndarray, factor: int = BLOCK):
     """(block means (H/f, W/f, C) of the masked texels, blocks holding any masked texel)."""
     from pdic.bench.run import block_average

@@ -55,10 +55,11 @@ def worst_blocks(test: np.ndarray, pair: tuple, count: int) -> np.ndarray:
 
 
 def traced_blocks(scene, kind: str, mask: np.ndarray, chosen: np.ndarray, paths: int, per_axis: int, seed: int
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """((k, 3) traced E/pi mean over the masked texels of each block, (k,) its standard error): every texel
-    path-traced over Cycles' footprint; ``kind`` "all" adds the direct light at the same points (one shadow ray
-    per light and point: exact for point lights, whose noise the standard error then leaves out)."""
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """((k, 3) traced E/pi mean over the masked texels of each block, (k,) its standard error, (k,) int the
+    footprint points whose indirect light traced black: inside closed geometry): every texel path-traced over
+    Cycles' footprint; ``kind`` "all" adds the direct light at the same points (one shadow ray per light and
+    point: exact for point lights, whose noise the standard error then leaves out)."""
     from pdic.bench.path_referee import _traced_per_texel, cycles_footprint, mean_indirect
     from pdic.bench.competitors import BLOCK
     from pdic.core.direct import direct_irradiance
@@ -75,13 +76,15 @@ def traced_blocks(scene, kind: str, mask: np.ndarray, chosen: np.ndarray, paths:
     caster = RayCaster(scene.geometry.positions)
     texel, p, n, n_g = cycles_footprint(scene, 0, texels, per_axis, rng, blender_52=False, geometric=True)
     mean, se = mean_indirect(scene, caster, p, n, paths, rng)
+    point_slot = slot[np.searchsorted(texels, texel)]
+    black = np.bincount(point_slot, weights=mean.mean(axis=1) < BLACK, minlength=len(chosen)).astype(np.int64)
     if kind == "all":
         mean = mean + direct_irradiance(scene, caster, p, n, n_g, 1, rng).E / np.pi
     per_texel, per_texel_se = _traced_per_texel(texels, texel, mean, se)
     count = np.maximum(np.bincount(slot, minlength=len(chosen)), 1)
     traced = np.stack([np.bincount(slot, weights=per_texel[:, c], minlength=len(chosen)) for c in range(3)], 1)
     variance = np.bincount(slot, weights=per_texel_se ** 2, minlength=len(chosen))
-    return traced / count[:, None], np.sqrt(variance) / count
+    return traced / count[:, None], np.sqrt(variance) / count, black
 
 
 def refereed_block_error(test: np.ndarray, pair: tuple, chosen: np.ndarray, traced: np.ndarray,
@@ -100,6 +103,9 @@ def refereed_block_error(test: np.ndarray, pair: tuple, chosen: np.ndarray, trac
     return float(before), float(after)
 
 
+BLACK = 1e-4
+"""A footprint point whose traced indirect E/pi (its channels' mean) is below this is black: every path from it
+met a back face (inside closed geometry; bench/small_blocks.py's *partly inside* blocks)."""
 DARK_PAIR = 0.01
 """A block where the pair reads below this fraction of PDIC is one where Cycles' rays stopped at once (a twin
 face in the same plane, or a face nearer than PDIC's ray offset): the trace shares that offset with PDIC,
@@ -175,15 +181,14 @@ def main(argv=None):
     x = comp.block_means(np.load(work / "pdic_final.npz")[args.kind], mask)[0]
 
     chosen = worst_blocks(x, pair, args.blocks)
-    traced, traced_se = traced_blocks(scene, args.kind, mask, chosen, args.paths, args.per_axis, args.seed)
+    traced, traced_se, _ = traced_blocks(scene, args.kind, mask, chosen, args.paths, args.per_axis, args.seed)
     before, after = refereed_block_error(x, pair, chosen, traced, traced_se)
     lum_pdic, lum_pair = x[chosen[:, 0], chosen[:, 1]].mean(axis=1), pair[0][chosen[:, 0], chosen[:, 1]].mean(1)
     judged = lum_pair >= DARK_PAIR * lum_pdic
     variants = {"all audited": (chosen, traced, traced_se, after)}
     independent = refereed_block_error(x, pair, chosen[judged], traced[judged], traced_se[judged])[1]
     variants["independent"] = (chosen[judged], traced[judged], traced_se[judged], independent)
-    padded = comp.pad_to_blocks(mask, comp.BLOCK)
-    counts = padded.reshape(padded.shape[0] // comp.BLOCK, comp.BLOCK, -1, comp.BLOCK).sum(axis=(1, 3))
+    counts = comp.block_counts(mask)
     pdic_nearer = 0
     print(f"{spec.label}, {args.kind}: the {len(chosen)} 8x8 blocks holding most of PDIC Final's squared block error "
           f"(block, texels both bake, E/pi luminance: PDIC / Cycles pair / path-traced +- its standard error)")

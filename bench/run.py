@@ -256,7 +256,7 @@ def blocks_off_by_fill(images: dict, covered: dict, pair) -> list:
     """:func:`blocks_off` per band of judged texels per block (BLOCK_FILL_BANDS), summed over the images:
     [(lo, hi, blocks judged, blocks off from the pair's mean, blocks where one Cycles bake of the pair is
     off from the other)]. The last is a yardstick: two seeds of the reference itself, judged alike."""
-    from pdic.bench.competitors import BLOCK, BLOCK_OFF, block_differences, pad_to_blocks
+    from pdic.bench.competitors import BLOCK_OFF, block_counts, block_differences
 
     a, b = (_bake_dict(p) for p in pair)
     bands = np.array(BLOCK_FILL_BANDS)
@@ -265,8 +265,7 @@ def blocks_off_by_fill(images: dict, covered: dict, pair) -> list:
         mask = a["coverage"][n] & b["coverage"][n] & covered[n]
         rel, ok, _, _ = block_differences(images[n], 0.5 * (a["images"][n] + b["images"][n]), mask)
         rel_seeds, _, _, _ = block_differences(a["images"][n], b["images"][n], mask)
-        m = pad_to_blocks(mask, BLOCK)
-        fill = m.reshape(m.shape[0] // BLOCK, BLOCK, m.shape[1] // BLOCK, BLOCK).sum(axis=(1, 3))
+        fill = block_counts(mask)
         band = np.searchsorted(bands, fill, side="right") - 1
         for i in range(len(bands) - 1):
             inside = ok & (band == i)

@@ -15,9 +15,10 @@ bench/references/{scene}_small_blocks_{spp}x2_64_INDIRECT.npz (the cathedral's n
 digest and its map's side; it has no held pair, so Cycles' coverage is taken as the texels whose centre lies
 on a triangle).
 
-PDIC Final (each ``--seeds``) is judged on the small blocks against the held pair, if any, and the converged one;
-every block still off from the converged pair is traced by bench/path_referee.py over Cycles' footprint of
-its texels (``--paths`` per point), which says whose value it is:
+PDIC Final (each ``--seeds``) is judged on the small blocks against the held pair, if any, and the converged
+one; every block still off from the converged pair is traced over Cycles' footprint of its texels
+(bench/referee_competitors.py ``traced_blocks``, bench/path_referee.py's tracer; ``--paths`` per point),
+which says whose value it is:
 
 - *reference noise*: the converged pair's own seeds are more than 20 % apart there;
 - *partly inside*: some of the footprint's points lie inside closed geometry (traced black), which Cycles
@@ -42,7 +43,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 from bench import run as bench_run  # noqa: E402  (loads pdic and bpy)
 
-from pdic.bench.competitors import BLOCK, BLOCK_OFF, block_differences, pad_to_blocks  # noqa: E402
+from pdic.bench.competitors import BLOCK, BLOCK_OFF, block_counts, block_differences  # noqa: E402
 
 SMALL = 16
 """A block holding fewer judged texels than this (of 64) is small: it lies at a chart's edge."""
@@ -51,12 +52,6 @@ REFEREE_POINTS = 8
 few of the 64 that land on its triangle: with 4 per axis, 1-3)."""
 RESTRICT_UV = "PDIC_SmallBlocks"
 """The layer copy the restricted pair bakes into (removed with the scene: the bench's blend is not saved)."""
-
-
-def block_fill(mask: np.ndarray) -> np.ndarray:
-    """(H/8, W/8) int: the texels of ``mask`` (H, W) bool each 8x8 block holds (the map zero-padded)."""
-    m = pad_to_blocks(mask, BLOCK)
-    return m.reshape(m.shape[0] // BLOCK, BLOCK, m.shape[1] // BLOCK, BLOCK).sum(axis=(1, 3))
 
 
 def polygons_touching(uv: np.ndarray, loop_total: np.ndarray, width: int, height: int,
@@ -86,9 +81,9 @@ def restricted_layer(mesh, source: str, keep: np.ndarray, width: int, height: in
     """A copy ``name`` of ``mesh``'s UV layer ``source`` in which the polygons not in ``keep`` ((P,) bool) are
     collapsed onto the centre of texel (0, 0): a bake into it covers only the kept polygons' texels (and
     that one), and the geometry, hence the light, is the mesh's own."""
-    uv = np.empty(len(mesh.loops) * 2, np.float32)
-    mesh.uv_layers[source].data.foreach_get("uv", uv)
-    uv = uv.reshape(-1, 2)
+    from pdic.pdic_addon.uvmaps import read_uv
+
+    uv = read_uv(mesh, source)
     loop_total = np.empty(len(mesh.polygons), np.int64)
     mesh.polygons.foreach_get("loop_total", loop_total)
     uv[~np.repeat(keep, loop_total)] = (0.5 / width, 0.5 / height)
@@ -119,13 +114,11 @@ def restricted_bake(ob, target, blocks: np.ndarray, spp: int, path: Path) -> Non
     core ``target`` (the object as the add-on extracted it, its ``PDIC_Lightmap`` written back) and save it
     to ``path`` (bench/converged_references.py ``save_pair``, keyed by the target's name)."""
     from bench import converged_references as refs
-    from pdic.pdic_addon.uvmaps import LIGHTMAP_UV
+    from pdic.pdic_addon.uvmaps import LIGHTMAP_UV, read_uv
 
-    uv = np.empty(len(ob.data.loops) * 2, np.float32)
-    ob.data.uv_layers[LIGHTMAP_UV].data.foreach_get("uv", uv)
     loop_total = np.empty(len(ob.data.polygons), np.int64)
     ob.data.polygons.foreach_get("loop_total", loop_total)
-    keep = polygons_touching(uv.reshape(-1, 2), loop_total, target.width, target.height, blocks)
+    keep = polygons_touching(read_uv(ob.data), loop_total, target.width, target.height, blocks)
     restricted_layer(ob.data, LIGHTMAP_UV, keep, target.width, target.height)
     print(f"{ob.name}: {int(blocks.sum())} small blocks, {int(keep.sum())} of {len(keep)} polygons baked", flush=True)
     pair, seconds = refs.seed_pair([ob], RESTRICT_UV, {ob.name: (target.width, target.height)}, spp)
@@ -154,7 +147,7 @@ def judged_blocks(indirect: np.ndarray, mask: np.ndarray, reference: list, small
     pair's own, "pdic", "ref": the means}."""
     (a, b) = (next(iter(bake["images"].values())) for bake in reference)
     cov = next(iter(reference[0]["coverage"].values())) & next(iter(reference[1]["coverage"].values()))
-    whole = block_fill(mask & cov) == block_fill(mask)
+    whole = block_counts(mask & cov) == block_counts(mask)
     rel, judged, pdic, ref = block_differences(indirect, 0.5 * (a + b), mask)
     seeds, _, _, _ = block_differences(a, b, mask)
     return dict(judged=judged & small & whole, rel=rel, seeds=seeds, pdic=pdic, ref=ref)
@@ -171,26 +164,6 @@ def verdict(pdic: float, cycles: float, traced: float, seeds: float, dark: int, 
     return "tracer with PDIC" if abs(pdic - traced) < abs(cycles - traced) else "PDIC's own"
 
 
-def referee(scene, mask: np.ndarray, blocks: list, paths: int, seed: int) -> list:
-    """[(traced block mean, its standard error, footprint points traced black, points)] per (by, bx) of
-    ``blocks``: bench/path_referee.py over Cycles' footprints of the block's ``mask`` texels."""
-    from bench.path_referee import cycles_footprint, mean_indirect, _traced_per_texel
-    from pdic.core.rays import RayCaster
-
-    caster, rng = RayCaster(scene.geometry.positions), np.random.default_rng(seed)
-    out = []
-    for by, bx in blocks:
-        cells = np.zeros(mask.shape, bool)
-        cells[by * BLOCK:(by + 1) * BLOCK, bx * BLOCK:(bx + 1) * BLOCK] = True
-        texels = np.flatnonzero((cells & mask).ravel())
-        texel, p, n = cycles_footprint(scene, 0, texels, REFEREE_POINTS, rng, False)
-        mean, se = mean_indirect(scene, caster, p, n, paths, rng)
-        traced, traced_se = _traced_per_texel(texels, texel, mean, se)
-        dark = int((mean.mean(axis=1) < 1e-4).sum())
-        out.append((float(traced.mean()), float(np.sqrt((traced_se ** 2).sum()) / len(texels)), dark, len(p)))
-    return out
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scene", default="sponza_held", help="a held converged scene (bench/convergence.py), or "
@@ -203,6 +176,7 @@ def main(argv=None):
     ap.add_argument("--paths", type=int, default=1024, help="path-traced paths per footprint point")
     args = ap.parse_args(argv)
     from bench import convergence
+    from bench.referee_competitors import traced_blocks
     from pdic.core.pipeline import bake
     from pdic.core.settings import preset
     from pdic.core.texels import lift_texels
@@ -217,7 +191,7 @@ def main(argv=None):
     comparable = bench_run.comparable_texels(scene, preset("FINAL").texel_samples)[name]
     # Cycles bakes the texels whose centre lies on a triangle: the held pair's coverage, or those centres
     held = centre if pair is None else pair[0]["coverage"][name] & pair[1]["coverage"][name] & centre
-    blocks = (block_fill(held) > 0) & (block_fill(held) < SMALL)
+    blocks = (block_counts(held) > 0) & (block_counts(held) < SMALL)
     path = bench_run.REFERENCES / f"{label}_small_blocks_{args.spp}x2_64_INDIRECT.npz"
     if pair is None:
         if not path.exists():
@@ -229,7 +203,7 @@ def main(argv=None):
     for seed in (int(s) for s in args.seeds.split(",")):
         result = bake(scene, replace(preset("FINAL"), seed=seed))
         mask = held & result.centre_inside[name] & ~result.buried[name]
-        fill = block_fill(mask)
+        fill = block_counts(mask)
         small_judged = (fill > 0) & (fill < SMALL)
         fine = judged_blocks(result.indirect[name], mask, converged, small_judged)
         judged, held_off = fine["judged"], ""
@@ -242,15 +216,19 @@ def main(argv=None):
         print(f"seed {seed}: {int(judged.sum())} small blocks judged; PDIC off by more than {BLOCK_OFF:.0%} from the "
               f"{args.spp}-spp pair at {len(off)}{held_off}; the {args.spp}-spp pair's seeds are that far apart at "
               f"{int((judged & (fine['seeds'] > BLOCK_OFF)).sum())}", flush=True)
+        if not off:
+            continue
+        traced, traced_se, black = traced_blocks(scene, "indirect", mask, np.array(off), args.paths, REFEREE_POINTS,
+                                                 seed + 13)
         counts: dict = {}
-        for (by, bx), (traced, se, dark, points) in zip(off, referee(scene, mask, off, args.paths, seed + 13)):
+        for (by, bx), truth, se, dark in zip(off, traced.mean(axis=1), traced_se, black):
             block = (slice(by * BLOCK, (by + 1) * BLOCK), slice(bx * BLOCK, (bx + 1) * BLOCK))
             coincident = int((mask[block] & ~comparable[block]).sum())
-            why = verdict(fine["pdic"][by, bx], fine["ref"][by, bx], traced, fine["seeds"][by, bx], dark, coincident)
+            why = verdict(fine["pdic"][by, bx], fine["ref"][by, bx], truth, fine["seeds"][by, bx], dark, coincident)
             counts[why] = counts.get(why, 0) + 1
             print(f"  {by:4d} {bx:4d} {fill[by, bx]:2d} texels  PDIC {fine['pdic'][by, bx]:.4f}  Cycles "
-                  f"{fine['ref'][by, bx]:.4f} (seeds {fine['seeds'][by, bx]:.0%} apart)  traced {traced:.4f} +- "
-                  f"{se:.4f}, {dark}/{points} points black: {why}", flush=True)
+                  f"{fine['ref'][by, bx]:.4f} (seeds {fine['seeds'][by, bx]:.0%} apart)  traced {truth:.4f} +- "
+                  f"{se:.4f}, {dark} footprint points black: {why}", flush=True)
         if counts:
             print("  " + ", ".join(f"{why} {n}" for why, n in sorted(counts.items())), flush=True)
 

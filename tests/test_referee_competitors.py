@@ -40,7 +40,7 @@ def test_traced_blocks_of_a_lone_floor_hold_the_lamps_direct_light_over_cycles_f
     mask = np.ones((16, 16), bool)
     mask[0, 0] = False  # a texel left out of its block's mean
     chosen = np.array([[1, 0], [0, 0]])  # a lower block first: each block's mean lands in its own row
-    traced, se = referee_competitors.traced_blocks(scene, "all", mask, chosen, paths=2, per_axis=2, seed=5)
+    traced, se, _ = referee_competitors.traced_blocks(scene, "all", mask, chosen, paths=2, per_axis=2, seed=5)
     y, x = np.nonzero(mask & (np.arange(16)[None, :] < 8))  # blocks (0, 0) and (1, 0): the left column
     texels = y * 16 + x
     texel, p, _ = path_referee.cycles_footprint(scene, 0, texels, 2, np.random.default_rng(5), False)
@@ -52,5 +52,6 @@ def test_traced_blocks_of_a_lone_floor_hold_the_lamps_direct_light_over_cycles_f
         assert traced[row] == pytest.approx(np.full(3, per_texel[upper].mean()), rel=1e-6)
     assert traced[0, 0] != pytest.approx(traced[1, 0], rel=1e-3)
     assert np.all(se == 0.0)
-    dark, _ = referee_competitors.traced_blocks(scene, "indirect", mask, chosen, paths=2, per_axis=2, seed=5)
+    dark, _, black = referee_competitors.traced_blocks(scene, "indirect", mask, chosen, paths=2, per_axis=2, seed=5)
     assert np.all(dark == 0.0)
+    assert black.tolist() == [int((texel // 16 >= 8).sum()), int((texel // 16 < 8).sum())]  # every point black

@@ -5,6 +5,7 @@ import numpy as np
 
 import cycles_reference as cr
 from pdic.bench import small_blocks
+from pdic.pdic_addon.uvmaps import read_uv
 
 
 def _lit_floor_with_a_box(bpy):
@@ -44,12 +45,10 @@ def test_a_bake_restricted_to_some_polygons_gives_their_texels_the_full_bakes_va
     same light (the floor's other quads still reflect it), and nothing else is baked but that point."""
     floor = _lit_floor_with_a_box(blender)
     full = cr.cycles_bake_full([floor], "UVMap", 32, 32, {"DIRECT", "INDIRECT"}, 16, seed=1, diffuse_bounces=8)
-    uv = np.empty(len(floor.data.loops) * 2, np.float32)
-    floor.data.uv_layers["UVMap"].data.foreach_get("uv", uv)
     loop_total = np.full(len(floor.data.polygons), 4)
     blocks = np.zeros((4, 4), bool)
     blocks[1, 2] = True
-    keep = small_blocks.polygons_touching(uv.reshape(-1, 2), loop_total, 32, 32, blocks)
+    keep = small_blocks.polygons_touching(read_uv(floor.data, "UVMap"), loop_total, 32, 32, blocks)
     assert 0 < keep.sum() < len(keep) // 2
     small_blocks.restricted_layer(floor.data, "UVMap", keep, 32, 32)
     part = cr.cycles_bake_full([floor], small_blocks.RESTRICT_UV, 32, 32, {"DIRECT", "INDIRECT"}, 16, seed=1,
