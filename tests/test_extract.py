@@ -403,6 +403,28 @@ def test_light_unit_conversions(blender):
     assert w.power[0] > w.power[2]  # 3000 K is reddish
 
 
+def test_light_portal_emits_nothing_as_in_cycles(blender):
+    # A Cycles light portal (an area light with Portal on, set in a window of an interior) only guides
+    # Cycles' sampling of the world; extracted as an area light of its 500 W it lit the floor 180x.
+    import cycles_reference as cr
+
+    floor = add_mesh(blender, "Floor", QUAD_VERTS, QUAD_FACES)
+    for i, uv in enumerate([(0, 0), (1, 0), (1, 1), (0, 1)]):
+        floor.data.uv_layers[LM].data[i].uv = uv
+    add_light(blender, "Lamp", "POINT", location=(3, 0, 2), energy=100.0)
+    portal = add_light(blender, "Portal", "AREA", location=(0, 0, 1), energy=500.0)
+    portal.data.cycles.is_portal = True
+    ex = run(blender, [floor])
+    assert [light.name for light in ex.scene.lights] == ["Lamp"]
+    assert not any("Portal" in w for w in ex.warnings)
+    with_portal = cr.cycles_bake([floor], LM, 8, 8, {"DIRECT"}, 16)["Floor"]
+    portal.data.cycles.is_portal = False  # no update_tag(): Blender keeps the evaluated copy's True
+    assert [light.name for light in run(blender, [floor]).scene.lights] == ["Lamp", "Portal"]
+    blender.data.objects.remove(portal)
+    without = cr.cycles_bake([floor], LM, 8, 8, {"DIRECT"}, 16)["Floor"]
+    np.testing.assert_allclose(with_portal, without, rtol=1e-5)  # Cycles: the portal adds nothing
+
+
 def test_instanced_light_is_extracted(blender):
     scene = blender.context.scene
     col = blender.data.collections.new("Lamps")  # only instanced, not in the scene itself
