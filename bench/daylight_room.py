@@ -1,7 +1,7 @@
 """Daylight room: sun through a window and a uniform sky, PDIC Final against Cycles, texel by texel.
 
     .venv/bin/python bench/daylight_room.py [--density 16] [--spp 1024] [--bounces 32] [--out DIR]
-        [--direct-samples 16] [--deviations sky_gathering=0] [--glass 0.8] [--competitors 16,64]
+        [--direct-samples 16] [--deviations sky_gathering=0] [--set photons=2000000] [--glass 0.8] [--competitors 16,64]
         [--quality PREVIEW] [--albedo 0.85 --sun 0 --sky 0 --uplight 500]
 
 Every other bench scene is lit by lamps inside it; an interior lit by daylight through a window is
@@ -216,6 +216,7 @@ def main(argv=None):
     ap.add_argument("--lamp", type=float, default=0.0, help="watts of a soft point light over the table")
     ap.add_argument("--direct-samples", type=int, default=0, help="PDIC's Direct Samples (0: the preset's)")
     ap.add_argument("--deviations", default="", help="switches as bench/run.py's, e.g. sky_gathering=0")
+    ap.add_argument("--set", default="", help="BakeSettings overrides, e.g. photons=2000000")
     ap.add_argument("--glass", type=float, default=0.0, help="a pane in the window passing this share per face")
     ap.add_argument("--quality", default="FINAL", choices=("PREVIEW", "FINAL"))
     ap.add_argument("--albedo", type=float, default=ALBEDO, help="the room's grey albedo")
