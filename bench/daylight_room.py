@@ -1,7 +1,7 @@
 """Daylight room: sun through a window and a uniform sky, PDIC Final against Cycles, texel by texel.
 
     .venv/bin/python bench/daylight_room.py [--density 16] [--spp 1024] [--bounces 32] [--out DIR]
-        [--direct-samples 16] [--deviations sky_gathering=0] [--set photons=2000000] [--glass 0.8] [--competitors 16,64]
+        [--direct-samples 16] [--deviations sky_gathering=0] [--set photons=2000000] [--portal] [--glass 0.8] [--competitors 16,64]
         [--quality PREVIEW] [--albedo 0.85 --sun 0 --sky 0 --uplight 500]
 
 Every other bench scene is lit by lamps inside it; an interior lit by daylight through a window is
@@ -82,7 +82,8 @@ def boxes() -> list:
     return shell + south + table + shelf
 
 
-def build(sun_angle: float = 0.0, lamp: float = 0.0, glass: float = 0.0, uplight: float = 0.0) -> bpy.types.Object:
+def build(sun_angle: float = 0.0, lamp: float = 0.0, glass: float = 0.0, uplight: float = 0.0,
+          portal: bool = False) -> bpy.types.Object:
     """A factory-fresh file with the room as one object, the sun and the sky; returns the object.
 
     sun_angle : the sun's angular diameter, degrees (0: hard shadows). lamp : watts of a point light
@@ -90,7 +91,9 @@ def build(sun_angle: float = 0.0, lamp: float = 0.0, glass: float = 0.0, uplight
     glass : > 0 glazes the window with a 1 cm pane (an object of its own, not baked) of a Principled
     BSDF of Alpha 1 - glass: each of its two faces passes ``glass`` of the light, in Cycles and PDIC.
     uplight : watts of a hard spot light 1 m above the floor aiming straight up at the ceiling (a 90-degree
-    cone): a room lit mostly by light bounced off the ceiling; 0: none."""
+    cone): a room lit mostly by light bounced off the ceiling; 0: none. portal : a Cycles light portal (an area
+    light with Portal on) filling the window at the wall's inner face, facing in: Cycles' noise changes, not
+    its light; PDIC sends the sun's and the sky's photons through it (deviation portal-photons)."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     _world(bpy, (1.0, 1.0, 1.0), WORLD_STRENGTH)
     mesh = boxes_mesh("Room", boxes())
@@ -103,6 +106,15 @@ def build(sun_angle: float = 0.0, lamp: float = 0.0, glass: float = 0.0, uplight
         pane.data.materials.append(_glass_material(1.0 - glass))
         pane.pdic.bake = False
         bpy.context.scene.collection.objects.link(pane)
+    if portal:
+        (wx0, wx1), (wz0, wz1) = WINDOW
+        window = bpy.data.lights.new("Portal", "AREA")
+        window.shape, window.size, window.size_y = "RECTANGLE", wx1 - wx0, wz1 - wz0
+        window.cycles.is_portal = True
+        window_ob = bpy.data.objects.new("Portal", window)
+        window_ob.location = (0.5 * (wx0 + wx1), 0.0, 0.5 * (wz0 + wz1))
+        window_ob.rotation_euler = (math.pi / 2, 0.0, 0.0)  # its -Z (the side it faces) into the room, +y
+        bpy.context.scene.collection.objects.link(window_ob)
     sun = bpy.data.lights.new("Sun", "SUN")
     sun.energy = SUN_STRENGTH
     sun.angle = math.radians(sun_angle)
@@ -217,6 +229,7 @@ def main(argv=None):
     ap.add_argument("--direct-samples", type=int, default=0, help="PDIC's Direct Samples (0: the preset's)")
     ap.add_argument("--deviations", default="", help="switches as bench/run.py's, e.g. sky_gathering=0")
     ap.add_argument("--set", default="", help="BakeSettings overrides, e.g. photons=2000000")
+    ap.add_argument("--portal", action="store_true", help="a light portal in the window (PDIC's photons use it)")
     ap.add_argument("--glass", type=float, default=0.0, help="a pane in the window passing this share per face")
     ap.add_argument("--quality", default="FINAL", choices=("PREVIEW", "FINAL"))
     ap.add_argument("--albedo", type=float, default=ALBEDO, help="the room's grey albedo")
@@ -230,7 +243,7 @@ def main(argv=None):
     folder.mkdir(parents=True, exist_ok=True)
     ALBEDO, SUN_STRENGTH, WORLD_STRENGTH = args.albedo, args.sun, args.sky
     pdic_addon.register()
-    ob = build(args.sun_angle, args.lamp, args.glass, args.uplight)
+    ob = build(args.sun_angle, args.lamp, args.glass, args.uplight, args.portal)
     job, wall, cpu = bake_job(args, folder, **({"direct_samples": args.direct_samples} if args.direct_samples else {}))
     result = job.result
     writeback.set_shading([ob], baked=False)  # Cycles must bake the room's own material, not the light map

@@ -93,8 +93,9 @@ def transport_key(scene) -> str:
     """Hash of everything light transport depends on (not targets, not resolutions, not origin)."""
     g = scene.geometry
     transmissive = (g.transmission,) if g.transmission.any() else ()  # opaque scenes keep their keys
+    portals = (scene.portals,) if scene.portals else ()  # so do scenes without portals
     return content_hash("transport", g.positions, g.normals, g.uvs, g.material, scene.materials,
-                        scene.textures, scene.lights, scene.world, *transmissive)
+                        scene.textures, scene.lights, scene.world, *transmissive, *portals)
 
 
 def target_key(scene, target, texel_samples: int) -> str:

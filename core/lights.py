@@ -23,6 +23,8 @@ import numpy as np
 
 from . import native_kernels, sampling
 from .sampling import concentric_disk, cosine_hemisphere, orthonormal_basis, uniform_cone, uniform_sphere, uniform_triangle
+from .constants import PORTAL_SHARE
+from .portals import Portals, mixture_power, through_portals
 from .vectors import dots, norms, unit
 
 
@@ -224,7 +226,29 @@ class SunLight(_Lamp):
         t1, t2 = orthonormal_basis(axis)
         disc = concentric_disk(rng.random((m, 2)))[0] * radius
         o = centre + axis * radius * OUTSIDE + disc[:, :1] * t1 + disc[:, 1:2] * t2
-        return o, -toward, power
+        portals = Portals.of(scene, centre, radius) if scene.portals else None
+        if portals is None:
+            return o, -toward, power
+        return self._through_portals(portals, o, -toward, power, centre, radius, rng)
+
+    def _through_portals(self, portals, o, d, power, centre, radius, rng):
+        """Deviation portal-photons (:mod:`core.portals`): a share of the lines through the portals the sun
+        shines into (chosen by area x cosine), each line weighted by the mixture's density."""
+        axis = np.asarray(self.direction, np.float64)
+        weight = portals.area * np.maximum(portals.normal @ -axis, 0.0)
+        if weight.sum() <= 0:
+            return o, d, power
+        chance = weight / weight.sum()
+        rows = np.flatnonzero(rng.random(len(o)) < PORTAL_SHARE)
+        j = rng.choice(len(portals), len(rows), p=chance)
+        x = portals.sample(j, rng)
+        # back along the line to the disc's plane (perpendicular to the sun's axis, R OUTSIDE from the centre)
+        s = (radius * OUTSIDE - (x - centre) @ axis) / -(d[rows] @ axis)
+        o[rows] = x - d[rows] * s[:, None]
+        crossed, cos = portals.crossed(o, d)
+        # disc lines per unit area across the line: 1 / (pi R^2 |d . axis|); portal lines: chance / (A |cos|)
+        ratio = np.pi * radius ** 2 * np.abs(d @ axis) * (crossed * chance / (portals.area * np.maximum(np.abs(cos), 1e-12))).sum(axis=1)
+        return o, d, mixture_power(power, ratio)
 
     def sample_toward(self, caster, p, n_s, n_g, samples, rng):
         return _sun(self, caster, p, n_s, n_g, samples, rng)
@@ -306,7 +330,20 @@ class World:
         t1, t2 = orthonormal_basis(d)
         disc = concentric_disk(rng.random((m, 2)))[0] * radius
         o = centre - d * radius * OUTSIDE + disc[:, :1] * t1 + disc[:, 1:2] * t2
-        return o, d, power
+        portals = Portals.of(scene, centre, radius) if scene.portals else None
+        if portals is None:
+            return o, d, power
+        # deviation: portal-photons (core/portals.py): a share of the lines through the portals (chosen by
+        # area), cosine-weighted inward; disc lines per unit area and solid angle 1 / (4 pi^2 R^2), portal
+        # lines 1 / (pi A_total) for each portal the line enters by.
+        rows = np.flatnonzero(rng.random(m) < PORTAL_SHARE)
+        j = rng.choice(len(portals), len(rows), p=portals.area / portals.area.sum())
+        x = portals.sample(j, rng)
+        d[rows] = _cosine_about(portals.normal[j], rng)
+        through_portals(o, d, rows, x, centre, radius * OUTSIDE)
+        crossed, cos = portals.crossed(o, d)
+        ratio = 4.0 * np.pi * radius ** 2 * (crossed & (cos > 0)).sum(axis=1) / portals.area.sum()
+        return o, d, mixture_power(power, ratio)
 
     def sample_toward(self, caster, p, n_s, n_g, samples, rng):
         return _world(self, caster, p, n_s, n_g, samples, rng)

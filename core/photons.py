@@ -13,7 +13,7 @@ together by offsetting their path links.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -313,6 +313,8 @@ def trace_pass(scene: Scene, caster: RayCaster, settings, photon_bounces: int, e
                progress: Progress, stats) -> PhotonMap:
     """Pass 1 of a bake, with its progress stage and counters (``stats``: a BakeStats)."""
     progress.begin("Pass 1: tracing photons")
+    if scene.portals and not settings.deviations.portal_photons:  # deviation: portal-photons
+        scene = replace(scene, portals=())
     with stats.stage("photons"):
         photon_map, trace = trace_photons(scene, caster, settings.photons, photon_bounces, settings.seed,
                                           executor, progress)
@@ -320,4 +322,6 @@ def trace_pass(scene: Scene, caster: RayCaster, settings, photon_bounces: int, e
               photons_escaped=trace.escaped, photon_emitters=len(trace.emitted_per_light),
               max_bounces=settings.max_bounces, photon_bounces=photon_bounces, photon_bytes=photon_map.nbytes,
               bytes_per_photon=PhotonMap.BYTES_PER_PHOTON)
+    if scene.portals:
+        stats.set(photon_portals=len(scene.portals))
     return photon_map

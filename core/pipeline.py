@@ -497,7 +497,8 @@ def indirect_at_targets(run: "_Run", targets: list[TargetTexels], params: CacheP
     settings, store = run.settings, run.store
     photon_bounces = settings.max_bounces - 1 if settings.refine else settings.max_bounces
     photon_key = store.key("photons", run.transport(), settings.photons, photon_bounces, settings.seed,
-                           *((settings.density_control, params) if settings.density_control else ()))
+                           *((settings.density_control, params) if settings.density_control else ()),
+                           *((settings.deviations.portal_photons,) if run.scene.portals else ()))
     cache_key = store.key("cache", photon_key, params, settings.refine, settings.hemisphere_theta,
                           settings.hemisphere_phi, settings.reuse_photon_paths, settings.deviations)
     passes: list = []  # (cache, photons, lighting) once computed or read, plus what holes read

@@ -211,10 +211,14 @@ class Scene:
     world: World = field(default_factory=World)
     targets: tuple = ()
     origin_world: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    portals: tuple = ()
+    """Light portals (:class:`AreaLight` shapes; their radiance is not read): windows a sun's and the world's
+    photons are sent through (deviation: portal-photons, core/portals.py). They emit nothing."""
 
     def __post_init__(self):
         object.__setattr__(self, "textures", tuple(self.textures))
         object.__setattr__(self, "lights", tuple(self.lights))
+        object.__setattr__(self, "portals", tuple(self.portals))
         object.__setattr__(self, "targets", tuple(self.targets))
         g, m = self.geometry, self.materials
         if g.count and (g.material.min() < 0 or g.material.max() >= m.count):

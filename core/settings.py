@@ -127,6 +127,10 @@ class Deviations:
     """Final: a texel sample whose surroundings stand nearer than a zone (tracery 2 cm before its wall, the
     crease under an overhang, a corner) gathers a record of its own and takes its E_k instead of Equation 3's
     (core/crevice_records.py)."""
+    portal_photons: bool = True
+    """A share of a sun's and the world's photons take lines through the scene's light portals (Cycles area
+    lights with Portal on, in a window) instead of the disc around the scene, weighted so the light is the
+    same in expectation (core/portals.py). Off: portals are ignored, as they always emit nothing."""
     sky_gathering: bool = True
     """The world's light reaches the texels through the records (Final: their gathering rays that escape
     read it; Preview: rays of their own; Equation 3 interpolates it with its own gradients) instead of

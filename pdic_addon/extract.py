@@ -42,7 +42,7 @@ import numpy as np
 
 from ..core.raster import overlapping
 from ..core.scene import BakeTarget, Geometry, Scene, SceneError, recentre
-from .extract_lights import extract_light, extract_world, recentre_light
+from .extract_lights import extract_light, extract_portal, extract_world, is_portal, recentre_light
 from .extract_materials import MaterialTable
 
 GEOMETRY_TYPES = frozenset({"MESH", "CURVE", "SURFACE", "FONT", "META"})
@@ -420,15 +420,21 @@ class _Reader:
         self.target_chunk: dict = {}  # session_uid -> index into chunks
         self.empty_targets: set = set()
         self.lights_world: list = []
+        self.portals_world: list = []  # Cycles light portals: windows for the sun's and the world's photons
         timings.setdefault("geometry", 0.0)
         timings.setdefault("lights", 0.0)
 
     def __call__(self, obj, matrix_world, name: str, target_uid) -> None:
         start = time.perf_counter()
         if obj.type == "LIGHT":
-            light = extract_light(obj.data, np.array(matrix_world, np.float64), name, self.warnings)
-            if light is not None:
-                self.lights_world.append(light)
+            if is_portal(obj.data):
+                portal = extract_portal(obj.data, np.array(matrix_world, np.float64), name, self.warnings)
+                if portal is not None:
+                    self.portals_world.append(portal)
+            else:
+                light = extract_light(obj.data, np.array(matrix_world, np.float64), name, self.warnings)
+                if light is not None:
+                    self.lights_world.append(light)
             self.timings["lights"] += time.perf_counter() - start
             return
         if obj.type not in GEOMETRY_TYPES:
@@ -573,6 +579,7 @@ def assemble_scene(geometry: Geometry, origin_world: np.ndarray, reader: _Reader
         world=world,
         targets=tuple(bake_targets),
         origin_world=origin_world,
+        portals=tuple(recentre_light(portal, origin_world) for portal in reader.portals_world),
     )
     if not scene.has_light():
         raise SceneError(

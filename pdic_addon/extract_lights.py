@@ -170,10 +170,20 @@ def extract_light(light, matrix_world: np.ndarray, name: str, warnings: list):
     return build(light, np.asarray(matrix_world, np.float64), name, power * normalize_factor(light), warnings)
 
 
+def extract_portal(light, matrix_world: np.ndarray, name: str, warnings: list) -> AreaLight | None:
+    """A light portal (:func:`is_portal`) as the :class:`AreaLight` shape the sun's and the world's photons are
+    sent through (``Scene.portals``; deviation portal-photons), in world coordinates; None if it has no area."""
+    portal = _area(light, np.asarray(matrix_world, np.float64), name, np.zeros(3), [])
+    if portal is None:
+        warnings.append(f"light portal {name!r} has no area: ignored")
+    return portal
+
+
 def is_portal(light) -> bool:
     """Whether ``light`` is a Cycles light portal (an area light with *Portal* on): it only guides Cycles'
     sampling of the world through a window and emits nothing (a Cycles 5.0 Diffuse Direct bake with a
-    500 W portal over a floor equals the bake without it, tests/test_extract.py), so it is no light here."""
+    500 W portal over a floor equals the bake without it, tests/test_extract.py): no light here, a window
+    for the photons (:func:`extract_portal`)."""
     # The original ID's setting: a script that turns Portal on or off does not tag the depsgraph (Cycles'
     # property group), so an evaluated copy may still hold the old value.
     settings = getattr(getattr(light, "original", light), "cycles", None)

@@ -414,8 +414,13 @@ def test_light_portal_emits_nothing_as_in_cycles(blender):
     add_light(blender, "Lamp", "POINT", location=(3, 0, 2), energy=100.0)
     portal = add_light(blender, "Portal", "AREA", location=(0, 0, 1), energy=500.0)
     portal.data.cycles.is_portal = True
+    portal.data.size = 1.0
     ex = run(blender, [floor])
     assert [light.name for light in ex.scene.lights] == ["Lamp"]
+    (window,) = ex.scene.portals  # the sun's and the world's photons go through it (deviation portal-photons)
+    np.testing.assert_allclose(window.position + ex.scene.origin_world, [0, 0, 1], atol=1e-9)
+    np.testing.assert_allclose(window.normal, [0, 0, -1], atol=1e-9)
+    assert window.area == pytest.approx(1.0)
     assert not any("Portal" in w for w in ex.warnings)
     with_portal = cr.cycles_bake([floor], LM, 8, 8, {"DIRECT"}, 16)["Floor"]
     portal.data.cycles.is_portal = False  # no update_tag(): Blender keeps the evaluated copy's True
