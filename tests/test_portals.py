@@ -61,7 +61,7 @@ def test_portal_photons_bring_the_same_light_through_the_window(light):
     for power, _ in through:
         assert power == pytest.approx(expected, rel=0.015)
     assert np.mean([p for p, _ in plain]) == pytest.approx(expected, rel=0.06)  # few photons: noisy, not biased
-    assert min(n for _, n in through) > 8 * max(n for _, n in plain)
+    assert min(n for _, n in through) > 8 * max(n for _, n in plain)  # the world: 25.5k against 720-760
 
 
 def test_portal_switch_off_ignores_the_portal():
@@ -85,4 +85,4 @@ def test_portal_steadies_the_rooms_indirect_light():
         return float(abs(a.mean() - b.mean()) / a.mean()), float(np.sqrt(np.mean((a - b) ** 2)) / a.mean())
 
     plain, through = spread(room), spread(replace(room, portals=(portal,)))
-    assert through[1] < 0.5 * plain[1]
+    assert through[1] < 0.3 * plain[1]  # 13.5 % RMS against 130 % (100k photons)
