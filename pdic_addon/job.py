@@ -383,6 +383,10 @@ class BakeJob:
     def _candidates(self) -> list:
         if self.explicit_objects is not None:
             return self.explicit_objects
+        if len(self.scene.objects) and not len(self.view_layer.objects):
+            # Objects a script linked into the scene's collections reach the view layer at its next update
+            # (an operator does it; ``objects.link`` does not): without one the bake found nothing to bake.
+            self.view_layer.update()
         if self.selected_only:
             candidates = [o for o in self.view_layer.objects
                           if o is not None and o.select_get(view_layer=self.view_layer)]

@@ -86,3 +86,35 @@ def test_portal_steadies_the_rooms_indirect_light():
 
     plain, through = spread(room), spread(replace(room, portals=(portal,)))
     assert through[1] < 0.3 * plain[1]  # 13.5 % RMS against 130 % (100k photons)
+
+
+def test_a_portal_in_blender_guides_the_bake_and_adds_no_light(blender, registered, tmp_path):
+    # The room as one Blender mesh under a white world, a Cycles portal in its window: the bake reads it as
+    # a portal (the photons' counters), not as a light, and warns about nothing.
+    from addon_scenes import fast_settings
+    from pdic.pdic_addon import job as job_module
+    from pdic.pdic_addon.properties import to_settings
+
+    room, window = window_room()
+    tris = (room.geometry.positions + room.origin_world).reshape(-1, 3)
+    mesh = blender.data.meshes.new("Room")
+    mesh.from_pydata(tris.tolist(), [], [(3 * i, 3 * i + 1, 3 * i + 2) for i in range(len(tris) // 3)])
+    blender.context.scene.collection.objects.link(blender.data.objects.new("Room", mesh))
+    world = blender.data.worlds.new("Sky")
+    world.color = (1.0, 1.0, 1.0)
+    blender.context.scene.world = world
+    portal = blender.data.lights.new("Window", "AREA")
+    portal.shape, portal.size, portal.size_y, portal.energy = "RECTANGLE", window.size_u, window.size_v, 1000.0
+    portal.cycles.is_portal = True
+    ob = blender.data.objects.new("Window", portal)
+    ob.location = tuple(window.position + room.origin_world)
+    ob.rotation_euler = (np.pi / 2, 0.0, 0.0)  # it faces along its -Z: into the room (+y)
+    blender.context.scene.collection.objects.link(ob)
+    fast_settings(blender, 16)
+    job = job_module.BakeJob(blender.context, to_settings(blender.context.scene.pdic),
+                             output_folder=str(tmp_path / "maps"), cache_dir=tmp_path / "unwrap_cache")
+    job.run()
+    counters = job.result.stats["counters"]
+    assert counters["photon_portals"] == 1 and counters["lights"] == 0
+    assert not any("Window" in w for w in job.report.warnings)
+    assert np.isfinite(job.result.indirect["Room"]).all()
