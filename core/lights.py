@@ -23,7 +23,6 @@ import numpy as np
 
 from . import native_kernels, sampling
 from .sampling import concentric_disk, cosine_hemisphere, orthonormal_basis, uniform_cone, uniform_sphere, uniform_triangle
-from .constants import PORTAL_SHARE
 from .portals import Portals, mixture_power, through_portals
 from .vectors import dots, norms, unit
 
@@ -239,12 +238,8 @@ class SunLight(_Lamp):
         if weight.sum() <= 0:
             return o, d, power
         chance = weight / weight.sum()
-        rows = np.flatnonzero(rng.random(len(o)) < PORTAL_SHARE)
-        j = rng.choice(len(portals), len(rows), p=chance)
-        x = portals.sample(j, rng)
-        # back along the line to the disc's plane (perpendicular to the sun's axis, R OUTSIDE from the centre)
-        s = (radius * OUTSIDE - (x - centre) @ axis) / -(d[rows] @ axis)
-        o[rows] = x - d[rows] * s[:, None]
+        rows, j, x = portals.pick(len(o), chance, rng)
+        through_portals(o, d, rows, x, centre, radius * OUTSIDE, facing=-axis)  # the disc across the sun's axis
         crossed, cos = portals.crossed(o, d)
         # disc lines per unit area across the line: 1 / (pi R^2 |d . axis|); portal lines: chance / (A |cos|)
         ratio = np.pi * radius ** 2 * np.abs(d @ axis) * (crossed * chance / (portals.area * np.maximum(np.abs(cos), 1e-12))).sum(axis=1)
@@ -336,9 +331,7 @@ class World:
         # deviation: portal-photons (core/portals.py): a share of the lines through the portals (chosen by
         # area), cosine-weighted inward; disc lines per unit area and solid angle 1 / (4 pi^2 R^2), portal
         # lines 1 / (pi A_total) for each portal the line enters by.
-        rows = np.flatnonzero(rng.random(m) < PORTAL_SHARE)
-        j = rng.choice(len(portals), len(rows), p=portals.area / portals.area.sum())
-        x = portals.sample(j, rng)
+        rows, j, x = portals.pick(m, portals.area / portals.area.sum(), rng)
         d[rows] = _cosine_about(portals.normal[j], rng)
         through_portals(o, d, rows, x, centre, radius * OUTSIDE)
         crossed, cos = portals.crossed(o, d)

@@ -66,6 +66,14 @@ class Portals:
         return (self.centre[j] + uv[:, :1] * self.half_u[j, None] * self.axis_u[j]
                 + uv[:, 1:2] * self.half_v[j, None] * self.axis_v[j])
 
+    def pick(self, m: int, chance: np.ndarray, rng: np.random.Generator
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(rows (k,): the PORTAL_SHARE of ``m`` lines drawn through the portals, their portals (k,) chosen by
+        ``chance`` (P,), a point on each (k, 3))."""
+        rows = np.flatnonzero(rng.random(m) < PORTAL_SHARE)
+        j = rng.choice(len(self), len(rows), p=chance)
+        return rows, j, self.sample(j, rng)
+
     def crossed(self, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """((m, P) bool: line o + t d (any t) crosses portal j, (m, P) cos of d to its normal) for lines
         o, d (m, 3), d unit."""
@@ -80,12 +88,16 @@ class Portals:
 
 
 def through_portals(o: np.ndarray, d: np.ndarray, portal_rows: np.ndarray, x: np.ndarray, centre: np.ndarray,
-                    reach: float) -> None:
-    """Move the origins of rows ``portal_rows`` onto the disc the emitter starts from: the point of the line
-    through x (k, 3) along d that lies ``reach`` before the sphere's centre, in place."""
+                    reach: float, facing: np.ndarray | None = None) -> None:
+    """Move the origins of rows ``portal_rows`` onto the plane of the disc the emitter starts from, in place: the
+    point of the line through x (k, 3) along d that lies ``reach`` before the sphere's centre along ``facing``
+    (3,) (a sun's disc, across its axis), or along the line itself (None: the world's disc, across each d)."""
     dk = d[portal_rows]
-    along = np.einsum("ij,ij->i", x - centre, dk)
-    o[portal_rows] = x - dk * (along + reach)[:, None]
+    if facing is None:
+        back = np.einsum("ij,ij->i", x - centre, dk) + reach
+    else:
+        back = ((x - centre) @ facing + reach) / (dk @ facing)
+    o[portal_rows] = x - dk * back[:, None]
 
 
 def mixture_power(flux_each: np.ndarray, ratio: np.ndarray, share: float = PORTAL_SHARE) -> np.ndarray:

@@ -154,14 +154,12 @@ def extract_light(light, matrix_world: np.ndarray, name: str, warnings: list):
 
     Returns
     -------
-    PointLight | SpotLight | SunLight | AreaLight, or None for an unsupported type or a light portal
-    (:func:`is_portal`).
+    PointLight | SpotLight | SunLight | AreaLight, or None for an unsupported type. A light portal
+    (:func:`is_portal`) is no light: the extraction reads it with :func:`extract_portal` instead.
     """
     build = LIGHT_BUILDERS.get(light.type)
     if build is None:
         warnings.append(f"light {name!r}: unsupported light type {light.type!r} ignored")
-        return None
-    if is_portal(light):
         return None
     power = light_power(light)
     if np.any(power < 0):
