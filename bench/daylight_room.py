@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/daylight_room.py [--density 16] [--spp 1024] [--bounces 32] [--out DIR]
         [--direct-samples 16] [--deviations sky_gathering=0] [--set photons=2000000] [--portal] [--glass 0.8] [--competitors 16,64]
+        [--layout two-windows]
         [--quality PREVIEW] [--albedo 0.85 --sun 0 --sky 0 --uplight 500]
 
 Every other bench scene is lit by lamps inside it; an interior lit by daylight through a window is
@@ -66,14 +67,28 @@ ROOM = (6.0, 5.0, 3.0)
 WALL = 0.2
 WINDOW = ((2.0, 4.0), (0.9, 2.2))
 """The window's x and z extent in the south wall (y = 0)."""
+EAST_WINDOW = ((3.3, 4.5), (1.0, 2.1))
+"""Layout ``two-windows``: a second window's y and z extent in the east wall (x = 6)."""
+OVERHANG = ((1.5, -1.2, 2.35), (4.5, -WALL, 2.45))
+"""Layout ``two-windows``: a 1 m deep slab outside over the south window (part of the room's object)."""
+TWO_WINDOWS_SUN = (math.radians(30.0), math.radians(45.0))
+"""Layout ``two-windows``: the sun's elevation and azimuth (from the south-east: in through both windows)."""
 
 
-def boxes() -> list:
-    """The room as axis-aligned boxes ((x0, y0, z0), (x1, y1, z1)): shell, window wall, table, shelf."""
+def boxes(layout: str = "window") -> list:
+    """The room as axis-aligned boxes ((x0, y0, z0), (x1, y1, z1)): shell, window wall, table, shelf;
+    layout ``two-windows`` also has the east window and the overhang outside."""
     L, W, H, t = *ROOM, WALL
     (wx0, wx1), (wz0, wz1) = WINDOW
+    if layout == "two-windows":
+        (ey0, ey1), (ez0, ez1) = EAST_WINDOW
+        east = [((L, -t, 0), (L + t, ey0, H)), ((L, ey1, 0), (L + t, W + t, H)),
+                ((L, ey0, 0), (L + t, ey1, ez0)), ((L, ey0, ez1), (L + t, ey1, H))]
+        outside = [OVERHANG]
+    else:
+        east, outside = [((L, -t, 0), (L + t, W + t, H))], []
     shell = [((-t, -t, -t), (L + t, W + t, 0)), ((-t, -t, H), (L + t, W + t, H + t)),
-             ((-t, -t, 0), (0, W + t, H)), ((L, -t, 0), (L + t, W + t, H)), ((0, W, 0), (L, W + t, H))]
+             ((-t, -t, 0), (0, W + t, H)), *east, ((0, W, 0), (L, W + t, H)), *outside]
     south = [((0, -t, 0), (wx0, 0, H)), ((wx1, -t, 0), (L, 0, H)),
              ((wx0, -t, 0), (wx1, 0, wz0)), ((wx0, -t, wz1), (wx1, 0, H))]
     table = [((2.4, 2.4, 0.72), (3.6, 3.2, 0.76))] + [
@@ -83,7 +98,7 @@ def boxes() -> list:
 
 
 def build(sun_angle: float = 0.0, lamp: float = 0.0, glass: float = 0.0, uplight: float = 0.0,
-          portal: bool = False) -> bpy.types.Object:
+          portal: bool = False, layout: str = "window") -> bpy.types.Object:
     """A factory-fresh file with the room as one object, the sun and the sky; returns the object.
 
     sun_angle : the sun's angular diameter, degrees (0: hard shadows). lamp : watts of a point light
@@ -93,10 +108,12 @@ def build(sun_angle: float = 0.0, lamp: float = 0.0, glass: float = 0.0, uplight
     uplight : watts of a hard spot light 1 m above the floor aiming straight up at the ceiling (a 90-degree
     cone): a room lit mostly by light bounced off the ceiling; 0: none. portal : a Cycles light portal (an area
     light with Portal on) filling the window at the wall's inner face, facing in: Cycles' noise changes, not
-    its light; PDIC sends the sun's and the sky's photons through it (deviation portal-photons)."""
+    its light; PDIC sends the sun's and the sky's photons through it (deviation portal-photons); layout
+    ``two-windows``: a second window in the east wall (a portal in it too), an overhang outside over the south
+    window and the sun from the south-east, 30 degrees up (TWO_WINDOWS_SUN)."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     _world(bpy, (1.0, 1.0, 1.0), WORLD_STRENGTH)
-    mesh = boxes_mesh("Room", boxes())
+    mesh = boxes_mesh("Room", boxes(layout))
     mesh.materials.append(_diffuse_material(bpy, "Plaster", ALBEDO))
     ob = bpy.data.objects.new("Room", mesh)
     bpy.context.scene.collection.objects.link(ob)
@@ -108,19 +125,20 @@ def build(sun_angle: float = 0.0, lamp: float = 0.0, glass: float = 0.0, uplight
         bpy.context.scene.collection.objects.link(pane)
     if portal:
         (wx0, wx1), (wz0, wz1) = WINDOW
-        window = bpy.data.lights.new("Portal", "AREA")
-        window.shape, window.size, window.size_y = "RECTANGLE", wx1 - wx0, wz1 - wz0
-        window.cycles.is_portal = True
-        window_ob = bpy.data.objects.new("Portal", window)
-        window_ob.location = (0.5 * (wx0 + wx1), 0.0, 0.5 * (wz0 + wz1))
-        window_ob.rotation_euler = (math.pi / 2, 0.0, 0.0)  # its -Z (the side it faces) into the room, +y
-        bpy.context.scene.collection.objects.link(window_ob)
+        # its -Z (the side it faces) into the room: +y through the south wall
+        _portal("Portal", (wx1 - wx0, wz1 - wz0), (0.5 * (wx0 + wx1), 0.0, 0.5 * (wz0 + wz1)), (math.pi / 2, 0.0, 0.0))
+        if layout == "two-windows":  # -x through the east wall; its local x runs along z
+            (ey0, ey1), (ez0, ez1) = EAST_WINDOW
+            _portal("Portal East", (ez1 - ez0, ey1 - ey0), (ROOM[0], 0.5 * (ey0 + ey1), 0.5 * (ez0 + ez1)),
+                    (0.0, math.pi / 2, 0.0))
     sun = bpy.data.lights.new("Sun", "SUN")
     sun.energy = SUN_STRENGTH
     sun.angle = math.radians(sun_angle)
     sun_ob = bpy.data.objects.new("Sun", sun)
-    # A sun shines along its -Z: tilted about X by 90 - elevation it points north (+y) and down.
-    sun_ob.rotation_euler = (math.pi / 2 - SUN_ELEVATION, 0.0, 0.0)
+    # A sun shines along its -Z: tilted about X by 90 - elevation it points north (+y) and down; turned about
+    # Z by the azimuth, north-west.
+    elevation, azimuth = TWO_WINDOWS_SUN if layout == "two-windows" else (SUN_ELEVATION, 0.0)
+    sun_ob.rotation_euler = (math.pi / 2 - elevation, 0.0, azimuth)
     bpy.context.scene.collection.objects.link(sun_ob)
     if lamp > 0:
         light = bpy.data.lights.new("Lamp", "POINT")
@@ -141,6 +159,16 @@ def build(sun_angle: float = 0.0, lamp: float = 0.0, glass: float = 0.0, uplight
         bpy.context.scene.collection.objects.link(up_ob)
     bpy.context.view_layer.update()
     return ob
+
+
+def _portal(name: str, size: tuple, location: tuple, rotation: tuple) -> None:
+    """A rectangular Cycles light portal of ``size`` (its local x, y) linked to the scene."""
+    window = bpy.data.lights.new(name, "AREA")
+    window.shape, (window.size, window.size_y) = "RECTANGLE", size
+    window.cycles.is_portal = True
+    window_ob = bpy.data.objects.new(name, window)
+    window_ob.location, window_ob.rotation_euler = location, rotation
+    bpy.context.scene.collection.objects.link(window_ob)
 
 
 def _glass_material(alpha: float):
@@ -230,6 +258,8 @@ def main(argv=None):
     ap.add_argument("--deviations", default="", help="switches as bench/run.py's, e.g. sky_gathering=0")
     ap.add_argument("--set", default="", help="BakeSettings overrides, e.g. photons=2000000")
     ap.add_argument("--portal", action="store_true", help="a light portal in the window (PDIC's photons use it)")
+    ap.add_argument("--layout", default="window", choices=("window", "two-windows"),
+                    help="two-windows: an east window too, an overhang over the south one, a south-east sun")
     ap.add_argument("--glass", type=float, default=0.0, help="a pane in the window passing this share per face")
     ap.add_argument("--quality", default="FINAL", choices=("PREVIEW", "FINAL"))
     ap.add_argument("--albedo", type=float, default=ALBEDO, help="the room's grey albedo")
@@ -243,7 +273,7 @@ def main(argv=None):
     folder.mkdir(parents=True, exist_ok=True)
     ALBEDO, SUN_STRENGTH, WORLD_STRENGTH = args.albedo, args.sun, args.sky
     pdic_addon.register()
-    ob = build(args.sun_angle, args.lamp, args.glass, args.uplight, args.portal)
+    ob = build(args.sun_angle, args.lamp, args.glass, args.uplight, args.portal, args.layout)
     job, wall, cpu = bake_job(args, folder, **({"direct_samples": args.direct_samples} if args.direct_samples else {}))
     result = job.result
     writeback.set_shading([ob], baked=False)  # Cycles must bake the room's own material, not the light map
