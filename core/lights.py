@@ -18,6 +18,7 @@ space; every light emits from the side it faces.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -25,6 +26,9 @@ from . import native_kernels, sampling
 from .sampling import concentric_disk, cosine_hemisphere, orthonormal_basis, uniform_cone, uniform_sphere, uniform_triangle
 from .portals import Portals, mixture_power, through_portals
 from .vectors import dots, norms, unit
+
+if TYPE_CHECKING:  # rays imports scene, which imports this module
+    from .rays import RayCaster
 
 
 class SceneError(ValueError):
@@ -104,6 +108,15 @@ def scene_sphere(scene) -> tuple[np.ndarray, float]:
         return np.zeros(3), 1.0
     centre = 0.5 * (p.min(0) + p.max(0))
     return centre, max(float(np.linalg.norm(p - centre, axis=1).max()), 1e-12)
+
+
+def unused_portals(scene) -> list[str]:
+    """Names of ``scene.portals`` the sun's and the world's photons are not sent through (deviation
+    portal-photons): without area, or reaching outside the scene's bounding sphere (:meth:`Portals.usable`)."""
+    if not scene.portals:
+        return []
+    centre, radius = scene_sphere(scene)
+    return [p.name for p in scene.portals if not Portals.usable(p, centre, radius)]
 
 
 class _Lamp:
@@ -429,7 +442,6 @@ def _point_like(kind, light, attenuation, caster, p, n_s, n_g, samples, rng):
     P = _rgb(light.power, light.name)
     c = np.asarray(light.position, np.float64)
     r = max(float(light.radius), 0.0)
-    n = len(p)
     if not np.any(P > 0):
         return None
     delta = c - p
@@ -520,7 +532,6 @@ def _sun(light: "SunLight", caster, p, n_s, n_g, samples, rng):
     S = _rgb(light.irradiance, light.name)
     s = unit(np.asarray(light.direction, np.float64)[None])[0]
     alpha = float(np.clip(light.half_angle, 0.0, np.pi / 2))
-    n = len(p)
     if not np.any(S > 0) or not np.any(s):
         return None
     sin_a = np.sin(alpha)
@@ -550,7 +561,6 @@ def _area(light: "AreaLight", caster, p, n_s, n_g, samples, rng):
     if light.shape not in AREA_SHAPES:
         raise SceneError(f"area light {light.name!r}: unknown shape {light.shape!r} (expected one of {AREA_SHAPES})")
     L = _rgb(light.radiance, light.name)
-    n = len(p)
     su, sv = float(light.size_u), float(light.size_v)
     if not np.any(L > 0) or not (su > 0 and sv > 0 and np.isfinite(su * sv)):
         return None

@@ -21,6 +21,7 @@ from . import emission
 from .albedo import albedo as albedo_at
 from .constants import REFLECTED_SHARE_FLOOR, STREAM_PHOTONS, TRANSPARENT_MAX_LAYERS
 from .executor import Executor, Progress, serial_executor
+from .lights import unused_portals
 from .rays import RayCaster
 from .sampling import cosine_hemisphere, to_world
 from .scene import Scene
@@ -322,6 +323,6 @@ def trace_pass(scene: Scene, caster: RayCaster, settings, photon_bounces: int, e
               photons_escaped=trace.escaped, photon_emitters=len(trace.emitted_per_light),
               max_bounces=settings.max_bounces, photon_bounces=photon_bounces, photon_bytes=photon_map.nbytes,
               bytes_per_photon=PhotonMap.BYTES_PER_PHOTON)
-    if scene.portals:
-        stats.set(photon_portals=len(scene.portals))
+    if scene.portals:  # the portals the sun's and the world's photons were sent through
+        stats.set(photon_portals=len(scene.portals) - len(unused_portals(scene)))
     return photon_map

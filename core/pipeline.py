@@ -39,7 +39,7 @@ from .direct import shade_direct
 from .direct_footprint import footprint_direct
 from .executor import TEXEL_CHUNK, Beside, Executor, Progress, default_workers, serial_executor
 from .hit_radiance import HitGrid
-from .hole_records import indirect_at_texels, interpolate_filling_holes, texel_verdicts  # noqa: F401  (re-exported)
+from .hole_records import indirect_at_texels, texel_verdicts
 from .interpolation import CacheLookup
 from .irradiance_cache import CacheParameters, IrradianceCache, cache_from_photons
 from .lightmaps import write_lightmaps

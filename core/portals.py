@@ -22,6 +22,9 @@ from .constants import PORTAL_SHARE
 from .sampling import concentric_disk
 
 ROUND = ("DISK", "ELLIPSE")
+ON_SPHERE = 1e-9
+"""Relative slack of :meth:`Portals.usable`'s sphere test: a corner at a vertex of the scene's bounding box is
+on the sphere up to rounding."""
 
 
 @dataclass(frozen=True)
@@ -39,15 +42,22 @@ class Portals:
     round: np.ndarray
 
     @staticmethod
+    def usable(portal, sphere_centre: np.ndarray, radius: float) -> bool:
+        """Whether the photons can be sent through ``portal`` (an area-light shape): it has area and its corners
+        lie inside the bounding sphere, or on it (a line through a point outside it may miss the disc the
+        photons start from; one through a point on it lands on the disc's rim). A portal filling a whole outer
+        wall of a box has its corners on the sphere."""
+        c, u, v = (np.asarray(x, np.float64) for x in (portal.position, portal.axis_u, portal.axis_v))
+        half = np.array([[su * portal.size_u, sv * portal.size_v] for su in (-0.5, 0.5) for sv in (-0.5, 0.5)])
+        corners = c + half @ np.stack([u, v])
+        reach = np.linalg.norm(corners - sphere_centre, axis=1)
+        return portal.area > 0 and bool(np.all(reach <= radius * (1.0 + ON_SPHERE)))
+
+    @staticmethod
     def of(scene, sphere_centre: np.ndarray, radius: float) -> "Portals | None":
-        """The portals of ``scene`` (``Scene.portals``: area-light shapes) whose corners lie inside the bounding
-        sphere (a line through one outside it may miss the disc the photons start from), or None."""
-        keep = []
-        for p in scene.portals:
-            c, u, v = (np.asarray(x, np.float64) for x in (p.position, p.axis_u, p.axis_v))
-            corners = c + np.array([[su * p.size_u, sv * p.size_v] for su in (-0.5, 0.5) for sv in (-0.5, 0.5)]) @ np.stack([u, v])
-            if p.area > 0 and np.all(np.linalg.norm(corners - sphere_centre, axis=1) < radius):
-                keep.append(p)
+        """The portals of ``scene`` (``Scene.portals``: area-light shapes) the photons can use (:meth:`usable`),
+        or None."""
+        keep = [p for p in scene.portals if Portals.usable(p, sphere_centre, radius)]
         if not keep:
             return None
         arrays = [np.array([np.asarray(getattr(p, f), np.float64) for p in keep]) for f in ("position", "normal",

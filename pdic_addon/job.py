@@ -41,6 +41,7 @@ from ..core import manifest as core_manifest
 from ..core import unwrap, user_uvs
 from ..core.dask_executor import DaskUnavailable
 from ..core.executor import Cancelled, Progress, make_executor
+from ..core.lights import unused_portals
 from ..core.scene import SceneError
 from ..core.settings import BakeSettings
 from . import atlas_bake, overlay, preferences, uvmaps, writeback
@@ -595,6 +596,10 @@ class BakeJob:
             targets = {o.name for o in self.objects}
             writeback.set_shading([o for o in showing if o.name not in targets], baked=True)
         self.warnings += self.extraction.warnings  # extraction names degenerate triangles and dark scenes
+        if self.settings.indirect and self.settings.photons > 0 and self.settings.deviations.portal_photons:
+            for name in unused_portals(self.extraction.scene):  # deviation: portal-photons
+                self.warnings.append(f"light portal {name!r} reaches outside the scene's bounds: PDIC sends no "
+                                     f"photons through it (Cycles still uses it); move it onto its window")
         if self.atlas_layout is not None:
             self.extraction.scene = atlas_bake.window_scene(self.extraction.scene, self.atlas_layout)
 

@@ -7,6 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from pdic.core.lights import unused_portals
 from pdic.core.pipeline import bake
 from pdic.core.photons import trace_photons
 from pdic.core.rays import RayCaster
@@ -64,6 +65,21 @@ def test_portal_photons_bring_the_same_light_through_the_window(light):
     assert min(n for _, n in through) > 8 * max(n for _, n in plain)  # the world: 25.5k against 720-760
 
 
+def test_a_portal_filling_a_whole_outer_wall_is_used_and_one_outside_the_scene_is_named():
+    # The front wall's full face: its corners are the room's, on the scene's bounding sphere up to rounding
+    # (a strict test left it out). The photons the wall stops still carry the light through its window alone.
+    room, window = window_room()
+    L, _, H = ROOM
+    wall = replace(window, name="wall", position=np.array([L / 2, 0.0, H / 2]) - room.origin_world, size_u=L, size_v=H)
+    far = replace(window, name="far", position=window.position - [0.0, 2.0, 0.0])  # 2 m out: past the sphere
+    assert unused_portals(replace(room, portals=(wall, far, window))) == ["far"]
+    through = [entering(replace(room, portals=(wall,)), 100_000, seed)[0] for seed in range(3)]
+    assert np.mean(through) == pytest.approx(np.pi, rel=0.03)
+    settings = preset("PREVIEW", photons=20_000, threads=1)
+    counters = bake(replace(room, portals=(far, window)), settings).stats["counters"]
+    assert counters["photon_portals"] == 1  # the far one is not used
+
+
 def test_portal_switch_off_ignores_the_portal():
     room, portal = window_room()
     settings = preset("PREVIEW", photons=20_000, threads=1)
@@ -90,7 +106,8 @@ def test_portal_steadies_the_rooms_indirect_light():
 
 def test_a_portal_in_blender_guides_the_bake_and_adds_no_light(blender, registered, tmp_path):
     # The room as one Blender mesh under a white world, a Cycles portal in its window: the bake reads it as
-    # a portal (the photons' counters), not as a light, and warns about nothing.
+    # a portal (the photons' counters), not as a light, and warns about nothing; a second portal 2 m out from
+    # the wall, outside the scene's bounds, is named in a warning (the photons cannot use it).
     from addon_scenes import fast_settings
     from pdic.pdic_addon import job as job_module
     from pdic.pdic_addon.properties import to_settings
@@ -110,11 +127,16 @@ def test_a_portal_in_blender_guides_the_bake_and_adds_no_light(blender, register
     ob.location = tuple(window.position + room.origin_world)
     ob.rotation_euler = (np.pi / 2, 0.0, 0.0)  # it faces along its -Z: into the room (+y)
     blender.context.scene.collection.objects.link(ob)
+    far = blender.data.objects.new("Far Window", portal)  # 2 m out from the wall: outside the scene's bounds
+    far.location = tuple(window.position + room.origin_world - [0.0, 2.0, 0.0])
+    far.rotation_euler = ob.rotation_euler
+    blender.context.scene.collection.objects.link(far)
     fast_settings(blender, 16)
     job = job_module.BakeJob(blender.context, to_settings(blender.context.scene.pdic),
                              output_folder=str(tmp_path / "maps"), cache_dir=tmp_path / "unwrap_cache")
     job.run()
     counters = job.result.stats["counters"]
     assert counters["photon_portals"] == 1 and counters["lights"] == 0
-    assert not any("Window" in w for w in job.report.warnings)
+    assert not any("'Window'" in w for w in job.report.warnings)
+    assert any("'Far Window'" in w and "outside" in w for w in job.report.warnings)
     assert np.isfinite(job.result.indirect["Room"]).all()
