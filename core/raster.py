@@ -33,6 +33,8 @@ from .constants import CENTRE_FOOTPRINT_PER_AXIS, DIRECT_FOOTPRINT_SIDE
 
 # Candidate points per vectorised batch (~40 bytes each in flight, so ~80 MB).
 BATCH_ELEMENTS = 1 << 21
+# Texel rows per band of :func:`rasterize_rows` (core/texels.py rasterises a map's bands on the bake's threads).
+BAND_ROWS = 128
 # A point whose barycentrics are all >= -INSIDE_EPS counts as inside (closes
 # float gaps on shared edges; duplicates are then resolved to one triangle).
 INSIDE_EPS = 1e-9
@@ -68,6 +70,8 @@ class TexelSamples:
         bake samples lie on in Cycles), -1 where ``centre_inside`` is False.
     width, height : light-map size in texels.
     past_edges : samples of texels at a chart's edge taken on their centre triangle (deviation: edge-folding).
+    rows : (first, end) the texel rows the samples cover (:func:`rasterize_rows`), None: all of them; the masks
+        are the whole image's, which the bands of one raster share and each fills its own rows of.
     """
 
     texel: np.ndarray
@@ -81,6 +85,7 @@ class TexelSamples:
     width: int
     height: int
     past_edges: int = 0
+    rows: tuple[int, int] | None = None
 
     def __post_init__(self):
         s = len(self.texel)
@@ -93,6 +98,12 @@ class TexelSamples:
     @property
     def count(self) -> int:
         return len(self.texel)
+
+    @property
+    def span(self) -> tuple[int, int]:
+        """(first, end) flat texel indices of the rows the samples cover."""
+        first, end = self.rows or (0, self.height)
+        return first * self.width, end * self.width
 
     def uv_texel(self, uv: np.ndarray) -> np.ndarray:
         """(s, 2) float64 sample positions in texel units (x right, y up), from the rasterised ``uv``."""
@@ -128,6 +139,14 @@ def rasterize(uv: np.ndarray, width: int, height: int, samples_per_axis: int = 2
     triangles of an unwrapped height field, 2x2 samples: 1024x1024 in 2.3 s
     (2.1 M samples), 2048x2048 in 13 s (8.3 M samples).
     """
+    uv = checked_uv(uv, width, height, samples_per_axis)
+    masks = RasterMasks.empty(int(width), int(height))
+    return rasterize_rows(uv, int(width), int(height), int(samples_per_axis), (0, int(height)), masks, map,
+                          edge_folding, footprint_side)
+
+
+def checked_uv(uv, width, height, samples_per_axis) -> np.ndarray:
+    """``uv`` as an array, after the checks :func:`rasterize` makes (ValueError naming what is wrong)."""
     uv = np.asarray(uv)
     if uv.ndim != 3 or uv.shape[1:] != (3, 2):
         raise ValueError(f"rasterize: uv must be (t, 3, 2), got {uv.shape}")
@@ -136,62 +155,98 @@ def rasterize(uv: np.ndarray, width: int, height: int, samples_per_axis: int = 2
         raise ValueError(f"rasterize: {len(bad)} UV triangles have non-finite coordinates, first triangle {bad[0]}")
     if width < 1 or height < 1 or samples_per_axis < 1:
         raise ValueError(f"rasterize: bad size {width}x{height} or samples_per_axis {samples_per_axis}")
+    return uv
+
+
+@dataclass(frozen=True)
+class RasterMasks:
+    """The per-texel masks of one raster, flat (width * height,), that its row bands fill: coverage and
+    centre_inside bool, centre_triangle int32 (-1: none); see :class:`TexelSamples`."""
+
+    width: int
+    height: int
+    coverage: np.ndarray
+    centre_inside: np.ndarray
+    centre_triangle: np.ndarray
+
+    @staticmethod
+    def empty(width: int, height: int) -> "RasterMasks":
+        size = width * height
+        return RasterMasks(width, height, np.zeros(size, bool), np.zeros(size, bool), np.full(size, -1, np.int32))
+
+
+def row_bands(height: int, rows: int = BAND_ROWS) -> list[tuple[int, int]]:
+    """(first, end) texel rows of the bands :func:`rasterize_rows` rasterises an image of ``height`` rows in."""
+    return [(first, min(first + rows, height)) for first in range(0, height, rows)]
+
+
+def rasterize_rows(uv: np.ndarray, width: int, height: int, samples_per_axis: int, rows: tuple[int, int],
+                   masks: RasterMasks, map=map, edge_folding: bool = False,
+                   footprint_side: float = DIRECT_FOOTPRINT_SIDE) -> TexelSamples:
+    """:func:`rasterize` over the texel rows [first, end) ``rows`` alone: the samples of those rows, the same
+    to the bit as the whole image's (every test a sample passes is its texel's own, in the image's
+    coordinates), their rows of ``masks`` filled. Bands of one image run on threads of their own: they write
+    disjoint rows of the masks they share."""
     width, height, n = int(width), int(height), int(samples_per_axis)
+    first, end = rows
+    lo, hi = first * width, end * width
     p_texel = uv.astype(np.float64) * [width, height]
 
     # -- sub-samples: n x n grid per texel, one triangle per point
-    sample, tri, bary = _grid_hits(p_texel, width, height, n, map)
+    sample, tri, bary = _grid_hits(p_texel, width, height, n, map, rows)
 
     # -- texel centres (the texels Cycles bakes, and those whose centre lies on an edge)
-    centre, centre_tri, _ = _grid_hits(p_texel, width, height, 1, map)
-    centre_inside = np.zeros(width * height, bool)
-    centre_inside[centre] = True
-    centre_triangle = np.full(width * height, -1, np.int32)
-    centre_triangle[centre] = centre_tri
+    centre, centre_tri, _ = _grid_hits(p_texel, width, height, 1, map, rows)
+    masks.centre_inside[centre] = True
+    masks.centre_triangle[centre] = centre_tri
     # Blender's bake gives a texel to the triangle under (x + 0.501, y + 0.502), not its centre: where the
     # centre lies on a shared edge (xatlas puts chart corners on texel centres) that decides which
     # triangle Cycles jitters on. Texels whose scan point is on no triangle keep their centre's.
-    scan, scan_tri, _ = _grid_hits(p_texel - BLENDER_SCAN_OFFSET, width, height, 1, map)
-    keep = centre_inside[scan]
-    centre_triangle[scan[keep]] = scan_tri[keep]
+    scan, scan_tri, _ = _grid_hits(p_texel - BLENDER_SCAN_OFFSET, width, height, 1, map, rows)
+    keep = masks.centre_inside[scan]
+    masks.centre_triangle[scan[keep]] = scan_tri[keep]
 
     sx, sy = sample % (width * n), sample // (width * n)
     texel = (sy // n) * width + sx // n
-    has_sample = np.zeros(width * height, bool)
-    has_sample[texel] = True
+    has_sample = np.zeros(hi - lo, bool)  # the band's texels
+    has_sample[texel - lo] = True
 
     # -- conservative samples: overlapped texels without any sub-sample
-    c_texel, c_tri, c_bary = _clipped_centroids(p_texel, width, height, has_sample, map)
+    c_texel, c_tri, c_bary = _clipped_centroids(p_texel, width, height, has_sample, map, rows)
 
     texel = np.concatenate([texel, c_texel])
     tri = np.concatenate([tri, c_tri])
     bary = np.concatenate([bary, c_bary])
     conservative = np.concatenate([np.zeros(len(sample), bool), np.ones(len(c_texel), bool)])
-    samples = _sorted_samples(texel, tri, bary, conservative, centre_inside.reshape(height, width),
-                              centre_triangle.reshape(height, width), width, height)
+    samples = _sorted_samples(texel, tri, bary, conservative, masks, rows)
     if edge_folding:  # deviation: edge-folding, docs/DEVIATIONS.md
-        held = np.bincount(samples.texel[~samples.conservative], minlength=width * height)
-        samples, placed = with_centre_footprints(samples, uv, np.flatnonzero(centre_inside & (held < n * n)),
-                                                 footprint_side)
+        held = np.bincount(samples.texel[~samples.conservative] - lo, minlength=hi - lo)
+        fold = lo + np.flatnonzero(masks.centre_inside[lo:hi] & (held < n * n))
+        samples, placed = with_centre_footprints(samples, uv, fold, footprint_side)
         samples = replace(samples, past_edges=placed)
     return samples
 
 
-def _sorted_samples(texel, tri, bary, conservative, centre_inside, centre_triangle, width, height,
+def _sorted_samples(texel, tri, bary, conservative, masks: RasterMasks, rows: tuple[int, int],
                     past_edges: int = 0, share: np.ndarray | None = None) -> TexelSamples:
-    """A :class:`TexelSamples` of unordered samples: sorted by texel (then triangle), each texel's weights
-    1 / its samples, or with ``share`` (s,) each sample's share over its texel's sum of them."""
+    """A :class:`TexelSamples` of unordered samples of texel ``rows``: sorted by texel (then triangle), each
+    texel's weights 1 / its samples, or with ``share`` (s,) each sample's share over its texel's sum of them;
+    the rows' coverage written to ``masks``."""
+    width, height = masks.width, masks.height
+    lo, hi = rows[0] * width, rows[1] * width
     order = _texel_order(texel, tri)
     texel, tri, bary, conservative = texel[order], tri[order], bary[order], conservative[order]
-    counts = np.bincount(texel, minlength=width * height)
+    counts = np.bincount(texel - lo, minlength=hi - lo)
     held = counts[counts > 0]
     if share is None:
         weight = np.repeat((1.0 / held).astype(np.float32), held)  # texels ascend: each texel's run of samples
     else:
         share = np.asarray(share, np.float64)[order]
-        weight = (share / np.bincount(texel, weights=share, minlength=width * height)[texel]).astype(np.float32)
-    return TexelSamples(texel, tri, bary, weight, conservative, (counts > 0).reshape(height, width),
-                        centre_inside, centre_triangle, width, height, past_edges)
+        weight = (share / np.bincount(texel - lo, weights=share, minlength=hi - lo)[texel - lo]).astype(np.float32)
+    masks.coverage[lo:hi] = counts > 0
+    return TexelSamples(texel, tri, bary, weight, conservative, masks.coverage.reshape(height, width),
+                        masks.centre_inside.reshape(height, width), masks.centre_triangle.reshape(height, width),
+                        width, height, past_edges, None if tuple(rows) == (0, height) else tuple(rows))
 
 
 def with_centre_footprints(samples: TexelSamples, uv: np.ndarray, texels: np.ndarray, side: float
@@ -206,14 +261,17 @@ def with_centre_footprints(samples: TexelSamples, uv: np.ndarray, texels: np.nda
     f_texel, f_tri, f_bary, f_share = centre_footprints(p_texel, width, texels,
                                                         samples.centre_triangle.reshape(-1)[texels].astype(np.int64),
                                                         side)
-    replaced = np.zeros(width * height, bool)
-    replaced[texels] = True
-    keep = ~replaced[samples.texel]
+    lo, hi = samples.span
+    replaced = np.zeros(hi - lo, bool)
+    replaced[texels - lo] = True
+    keep = ~replaced[samples.texel - lo]
+    masks = RasterMasks(width, height, samples.coverage.reshape(-1), samples.centre_inside.reshape(-1),
+                        samples.centre_triangle.reshape(-1))
     return _sorted_samples(np.concatenate([samples.texel[keep], f_texel]),
                            np.concatenate([samples.triangle[keep], f_tri]),
                            np.concatenate([samples.barycentric[keep], f_bary]),
                            np.concatenate([samples.conservative[keep], np.zeros(len(f_texel), bool)]),
-                           samples.centre_inside, samples.centre_triangle, width, height,
+                           masks, samples.rows or (0, height),
                            samples.past_edges, np.concatenate([samples.weight[keep], f_share])), len(f_texel)
 
 
@@ -319,17 +377,19 @@ def twice_area(p):
 
 
 # --------------------------------------------------------------------------- sub-samples
-def _grid_raw(p_texel, width, height, n, map=map):
+def _grid_raw(p_texel, width, height, n, map=map, rows: tuple[int, int] | None = None):
     """All (grid point, triangle) pairs with the point inside the triangle (up to
     INSIDE_EPS). Returns (sample (k,) int64 flat index sy * width * n + sx,
-    triangle (k,) int64, barycentric (k, 3) float64, least barycentric (k,))."""
+    triangle (k,) int64, barycentric (k, 3) float64, least barycentric (k,)).
+    rows : (first, end) the texel rows whose grid points are tested; None: all."""
     q = p_texel * n - 0.5  # grid point (sx, sy) sits at q = (sx, sy)
-    gw, gh = width * n, height * n
+    gw = width * n
+    first, end = rows or (0, height)
     area2 = twice_area(q)
     lo_x = np.maximum(np.ceil(q[:, :, 0].min(1) - 1e-9), 0).astype(np.int64)
     hi_x = np.minimum(np.floor(q[:, :, 0].max(1) + 1e-9), gw - 1).astype(np.int64)
-    lo_y = np.maximum(np.ceil(q[:, :, 1].min(1) - 1e-9), 0).astype(np.int64)
-    hi_y = np.minimum(np.floor(q[:, :, 1].max(1) + 1e-9), gh - 1).astype(np.int64)
+    lo_y = np.maximum(np.ceil(q[:, :, 1].min(1) - 1e-9), first * n).astype(np.int64)
+    hi_y = np.minimum(np.floor(q[:, :, 1].max(1) + 1e-9), end * n - 1).astype(np.int64)
     live = np.flatnonzero((hi_x >= lo_x) & (hi_y >= lo_y) & (np.abs(area2) > MIN_AREA2 * n * n))
 
     def batch(args):
@@ -350,15 +410,18 @@ def _grid_raw(p_texel, width, height, n, map=map):
     return tuple(np.concatenate(column) for column in zip(*parts))
 
 
-def _grid_hits(p_texel, width, height, n, map=map):
+def _grid_hits(p_texel, width, height, n, map=map, rows: tuple[int, int] | None = None):
     """Points of the n x n per-texel grid inside triangles, each given to one triangle.
 
     Returns (sample (k,) int64 flat index sy * width * n + sx, triangle (k,) int64,
     barycentric (k, 3) float64), unique in ``sample`` and in increasing order of it.
+    rows : (first, end) the texel rows whose grid points are tested; None: all.
     """
-    sample, tri, bary, least = _grid_raw(p_texel, width, height, n, map)
-    first = _one_per_sample(sample, tri, least, (width * n) * (height * n))
-    return sample[first], tri[first], _normalise(bary[first])
+    sample, tri, bary, least = _grid_raw(p_texel, width, height, n, map, rows)
+    first, end = rows or (0, height)
+    start = first * n * (width * n)  # the rows' first grid point: the tables span the rows alone
+    pick = _one_per_sample(sample - start, tri, least, (width * n) * ((end - first) * n))
+    return sample[pick], tri[pick], _normalise(bary[pick])
 
 
 DENSE_GRID_PER_PAIR = 4
@@ -441,17 +504,20 @@ def _texel_order(texel: np.ndarray, tri: np.ndarray) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- conservative samples
-def _clipped_centroids(p_texel, width, height, has_sample, map=map):
+def _clipped_centroids(p_texel, width, height, has_sample, map=map, rows: tuple[int, int] | None = None):
     """One sample per texel that triangles overlap but no sub-sample reached: the
     centroid of (texel square clipped by the triangle) of the largest overlap.
 
+    has_sample : (texels of ``rows``,) bool, the rows' texels a sub-sample reached.
+    rows : (first, end) the texel rows to sample; None: all.
     Returns (texel (c,) int64, triangle (c,) int64, barycentric (c, 3) float64).
     """
+    first, end = rows or (0, height)
     area2 = twice_area(p_texel)
     lo_x = np.maximum(np.floor(p_texel[:, :, 0].min(1)), 0).astype(np.int64)
     hi_x = np.minimum(np.ceil(p_texel[:, :, 0].max(1)) - 1, width - 1).astype(np.int64)
-    lo_y = np.maximum(np.floor(p_texel[:, :, 1].min(1)), 0).astype(np.int64)
-    hi_y = np.minimum(np.ceil(p_texel[:, :, 1].max(1)) - 1, height - 1).astype(np.int64)
+    lo_y = np.maximum(np.floor(p_texel[:, :, 1].min(1)), first).astype(np.int64)
+    hi_y = np.minimum(np.ceil(p_texel[:, :, 1].max(1)) - 1, end - 1).astype(np.int64)
     live = np.flatnonzero((hi_x >= lo_x) & (hi_y >= lo_y) & (np.abs(area2) > MIN_AREA2))
 
     def batch(args):
@@ -461,7 +527,7 @@ def _clipped_centroids(p_texel, width, height, has_sample, map=map):
         ty = y0[:, None, None] + np.arange(bh)[None, :, None]
         valid = (tx <= x1[:, None, None]) & (ty <= y1[:, None, None])
         flat = ty * width + tx
-        valid &= ~has_sample[np.where(valid, flat, 0)]
+        valid &= ~has_sample[np.where(valid, flat - first * width, 0)]
         m, r, c = np.nonzero(valid)
         if len(m) == 0:
             return None

@@ -13,8 +13,8 @@ import numpy as np
 
 from .constants import DIRECT_FOOTPRINT_SIDE
 from .crease_folding import off_centre_triangle, straddling_texels
-from .executor import TEXEL_CHUNK, slices
-from .raster import footprint_points, on_centre_triangles, rasterize, with_centre_footprints
+from .raster import (RasterMasks, checked_uv, footprint_points, on_centre_triangles, rasterize_rows, row_bands,
+                     with_centre_footprints)
 from .scene import Scene
 from .vectors import norms
 
@@ -105,10 +105,6 @@ def _group_key(target: np.ndarray, texel: np.ndarray, triangle: np.ndarray) -> n
     return (columns[0] * texels + columns[1]) * triangles + columns[2]
 
 
-LIFT_CHUNK = 8 * TEXEL_CHUNK
-"""Samples lifted onto the surface per task (~0.1 s each)."""
-
-
 @dataclass(frozen=True)
 class TargetRaster:
     """Per-target rasterisation bookkeeping: image size, coverage and Cycles' centre mask;
@@ -133,7 +129,7 @@ def lift_texels(scene: Scene, samples_per_axis: int, map=map, crease_folding: bo
     """Rasterise every target's light-map UVs and place the samples on the surface.
 
     Degenerate (zero-area) triangles are dropped here: they hold no surface to light.
-    map : runs batches of triangles and of samples (an executor's ``map`` spreads them over
+    map : runs the bands of texel rows (:func:`core.raster.row_bands`; an executor's ``map`` spreads them over
         threads; the points are the same).
     crease_folding : a texel with a sample off its centre triangle is sampled on that triangle (deviation:
         crease-folding, :func:`core.raster.centre_footprints`).
@@ -147,26 +143,39 @@ def lift_texels(scene: Scene, samples_per_axis: int, map=map, crease_folding: bo
     for target in scene.targets:
         keep = areas[target.triangles] > 0
         local = np.flatnonzero(keep)
-        uv = target.lightmap_uv[local]
-        samples = rasterize(uv, target.width, target.height, samples_per_axis, map, edge_folding, footprint_side)
-        centre = samples.centre_triangle.reshape(-1)
-        folded = 0
-        if crease_folding:
-            straddling = straddling_texels(samples.texel, samples.triangle, centre)
-            samples, folded = with_centre_footprints(samples, uv, straddling, footprint_side)
-        tri_local, b = samples.triangle, samples.barycentric  # b: weights of corners 0, 1, 2
-        tri = target.triangles[local[tri_local]]
-        count = len(tri)
+        uv = checked_uv(target.lightmap_uv[local], target.width, target.height, samples_per_axis)
+        masks = RasterMasks.empty(target.width, target.height)
+
+        def band(rows):  # a band of texel rows; its samples are the whole map's in those rows, to the bit
+            samples = rasterize_rows(uv, target.width, target.height, samples_per_axis, rows, masks,
+                                     edge_folding=edge_folding, footprint_side=footprint_side)
+            if not crease_folding:
+                return samples, 0
+            straddling = straddling_texels(samples.texel, samples.triangle, masks.centre_triangle)
+            return with_centre_footprints(samples, uv, straddling, footprint_side)
+
+        # Bands on the threads: the work per sample is numpy's over millions of rows (sorts, joins and their
+        # first touch of memory), which one thread did alone (Sponza 16/m: 6.8 s, a core idle).
+        bands = list(map(band, row_bands(target.height)))
+        ends = np.cumsum([len(samples.texel) for samples, _ in bands])
+        count = int(ends[-1]) if len(ends) else 0
         p, n_s, n_g = (np.empty((count, 3)) for _ in range(3))
+        tri, b, texel, weight = np.empty(count, np.int64), np.empty((count, 2)), np.empty(count, np.int64), np.empty(
+            count, np.float32)
 
-        def lift(s: slice) -> None:  # each chunk fills its rows: no serial join of 11 M rows (Sponza 2048^2)
-            p[s], n_s[s], n_g[s] = on_surface(geometry, face_n, tri[s], b[s])
+        def lift(index: int) -> None:  # each band fills its rows: no serial join of 11 M rows (Sponza 2048^2)
+            samples = bands[index][0]
+            s = slice(int(ends[index]) - len(samples.texel), int(ends[index]))
+            tri[s] = target.triangles[local[samples.triangle]]
+            b[s], texel[s], weight[s] = samples.barycentric[:, 1:3], samples.texel, samples.weight
+            p[s], n_s[s], n_g[s] = on_surface(geometry, face_n, tri[s], samples.barycentric)
 
-        list(map(lift, slices(count, LIFT_CHUNK)))
-        parts.append((p, n_s, n_g, tri, b[:, 1:3].copy(), np.full(count, len(rasters), np.int32),
-                      samples.texel, samples.weight))
-        rasters.append(TargetRaster(target.width, target.height, samples.coverage, samples.centre_inside,
-                                    slice(start, start + count), centre, folded, samples.past_edges))
+        list(map(lift, range(len(bands))))
+        parts.append((p, n_s, n_g, tri, b, np.full(count, len(rasters), np.int32), texel, weight))
+        rasters.append(TargetRaster(target.width, target.height, masks.coverage.reshape(target.height, target.width),
+                                    masks.centre_inside.reshape(target.height, target.width),
+                                    slice(start, start + count), masks.centre_triangle,
+                                    sum(folded for _, folded in bands), sum(samples.past_edges for samples, _ in bands)))
         start += count
     if not parts:
         empty = TexelPoints(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64),

@@ -129,6 +129,31 @@ def test_threads_give_the_same_samples_as_one_thread(rng):
         assert np.array_equal(getattr(serial, name), getattr(threaded, name)), name
 
 
+@pytest.mark.parametrize("edge_folding", [False, True])
+def test_bands_of_rows_give_the_whole_images_samples(rng, edge_folding):
+    """Rasterised in bands of 7 rows (core/texels.py rasterises a map's bands on the bake's threads), the
+    samples, weights and masks are the whole image's to the bit: on shared edges, overlapping charts,
+    slivers and triangles spanning many bands."""
+    from pdic.core.raster import RasterMasks, rasterize_rows, row_bands
+
+    grid = np.stack(np.meshgrid(np.linspace(0, 0.6, 23), np.linspace(0, 1, 31)), axis=-1).astype(np.float32)
+    a, b, c, d = grid[:-1, :-1], grid[:-1, 1:], grid[1:, 1:], grid[1:, :-1]
+    quads = np.concatenate([np.stack([a, b, c], 2).reshape(-1, 3, 2), np.stack([a, c, d], 2).reshape(-1, 3, 2)])
+    charts = rng.random((300, 3, 2)) * 0.15 + rng.random((300, 1, 2)) * [0.3, 0.85] + [0.65, 0.0]
+    tall = np.array([[[0.62, 0.01], [0.64, 0.01], [0.63, 0.99]], [[0.9, 0.02], [0.99, 0.5], [0.91, 0.97]]])
+    uv = np.concatenate([quads, charts, tall]).astype(np.float32)
+    whole = rasterize(uv, 120, 90, 2, edge_folding=edge_folding, footprint_side=0.8)
+    masks = RasterMasks.empty(120, 90)
+    bands = [rasterize_rows(uv, 120, 90, 2, rows, masks, edge_folding=edge_folding, footprint_side=0.8)
+             for rows in row_bands(90, 7)]
+    assert len(bands) == 13 and bands[0].rows == (0, 7) and whole.rows is None
+    for name in ("texel", "triangle", "barycentric", "weight", "conservative"):
+        assert np.array_equal(getattr(whole, name), np.concatenate([getattr(s, name) for s in bands])), name
+    for name in ("coverage", "centre_inside", "centre_triangle"):
+        assert np.array_equal(getattr(whole, name), getattr(masks, name).reshape(90, 120)), name
+    assert whole.past_edges == sum(s.past_edges for s in bands) and (whole.past_edges > 0) == edge_folding
+
+
 def test_one_pair_per_sample_matches_the_sort_of_all_pairs(rng):
     """Shared grid points keep the pair most inside its triangle, then the lowest triangle, in sample order."""
     from pdic.core.raster import _one_per_sample
