@@ -22,9 +22,10 @@ from .constants import PORTAL_SHARE
 from .sampling import concentric_disk
 
 ROUND = ("DISK", "ELLIPSE")
-ON_SPHERE = 1e-9
-"""Relative slack of :meth:`Portals.usable`'s sphere test: a corner at a vertex of the scene's bounding box is
-on the sphere up to rounding."""
+ON_SPHERE = 1e-6
+"""Relative slack of :meth:`Portals.usable`'s sphere test: a corner at a vertex of the scene's bounding box is on
+the sphere up to rounding, and Blender's float32 ``matrix_world`` puts such a portal's corners 0.9-1.3e-8 of the
+radius past it (a whole-wall portal turned by pi/2: cos(pi/2) is -4.4e-8 in float32)."""
 
 
 @dataclass(frozen=True)
@@ -44,9 +45,12 @@ class Portals:
     @staticmethod
     def usable(portal, sphere_centre: np.ndarray, radius: float) -> bool:
         """Whether the photons can be sent through ``portal`` (an area-light shape): it has area and its corners
-        lie inside the bounding sphere, or on it (a line through a point outside it may miss the disc the
-        photons start from; one through a point on it lands on the disc's rim). A portal filling a whole outer
-        wall of a box has its corners on the sphere."""
+        lie inside the bounding sphere, or on it up to ON_SPHERE (a line through a point outside it may miss
+        the disc the photons start from; one through a point on it, along the disc's axis (the world's lines,
+        a sun of no angle), lands on the disc's rim; a sun's cone of half-angle h can start such a line up to
+        about 2 R sin h past the rim, whose weight still counts the disc's density: negligible for the
+        sun's fraction of a degree). A portal filling a whole outer wall of a box has its corners on the
+        sphere."""
         c, u, v = (np.asarray(x, np.float64) for x in (portal.position, portal.axis_u, portal.axis_v))
         half = np.array([[su * portal.size_u, sv * portal.size_v] for su in (-0.5, 0.5) for sv in (-0.5, 0.5)])
         corners = c + half @ np.stack([u, v])

@@ -512,11 +512,11 @@ def _clipped_centroids(p_texel, width, height, has_sample, map=map, rows: tuple[
     rows : (first, end) the texel rows to sample; None: all.
     Returns (texel (c,) int64, triangle (c,) int64, barycentric (c, 3) float64).
     """
-    first, end = rows or (0, height)
+    top, end = rows or (0, height)
     area2 = twice_area(p_texel)
     lo_x = np.maximum(np.floor(p_texel[:, :, 0].min(1)), 0).astype(np.int64)
     hi_x = np.minimum(np.ceil(p_texel[:, :, 0].max(1)) - 1, width - 1).astype(np.int64)
-    lo_y = np.maximum(np.floor(p_texel[:, :, 1].min(1)), first).astype(np.int64)
+    lo_y = np.maximum(np.floor(p_texel[:, :, 1].min(1)), top).astype(np.int64)
     hi_y = np.minimum(np.ceil(p_texel[:, :, 1].max(1)) - 1, end - 1).astype(np.int64)
     live = np.flatnonzero((hi_x >= lo_x) & (hi_y >= lo_y) & (np.abs(area2) > MIN_AREA2))
 
@@ -527,7 +527,7 @@ def _clipped_centroids(p_texel, width, height, has_sample, map=map, rows: tuple[
         ty = y0[:, None, None] + np.arange(bh)[None, :, None]
         valid = (tx <= x1[:, None, None]) & (ty <= y1[:, None, None])
         flat = ty * width + tx
-        valid &= ~has_sample[np.where(valid, flat - first * width, 0)]
+        valid &= ~has_sample[np.where(valid, flat - top * width, 0)]
         m, r, c = np.nonzero(valid)
         if len(m) == 0:
             return None

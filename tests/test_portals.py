@@ -107,7 +107,8 @@ def test_portal_steadies_the_rooms_indirect_light():
 def test_a_portal_in_blender_guides_the_bake_and_adds_no_light(blender, registered, tmp_path):
     # The room as one Blender mesh under a white world, a Cycles portal in its window: the bake reads it as
     # a portal (the photons' counters), not as a light, and warns about nothing; a second portal 2 m out from
-    # the wall, outside the scene's bounds, is named in a warning (the photons cannot use it).
+    # the wall, outside the scene's bounds, is named in a warning (the photons cannot use it); a third filling
+    # the whole wall is used.
     from addon_scenes import fast_settings
     from pdic.pdic_addon import job as job_module
     from pdic.pdic_addon.properties import to_settings
@@ -131,12 +132,21 @@ def test_a_portal_in_blender_guides_the_bake_and_adds_no_light(blender, register
     far.location = tuple(window.position + room.origin_world - [0.0, 2.0, 0.0])
     far.rotation_euler = ob.rotation_euler
     blender.context.scene.collection.objects.link(far)
+    # The front wall's whole face: its corners are the room's, on the bounding sphere but for Blender's float32
+    # matrix (cos(pi/2) = -4.4e-8), which puts them about 1e-8 of the radius past it.
+    L, _, H = ROOM
+    wall_light = blender.data.lights.new("Wall", "AREA")
+    wall_light.shape, wall_light.size, wall_light.size_y = "RECTANGLE", L, H
+    wall_light.cycles.is_portal = True
+    wall = blender.data.objects.new("Wall", wall_light)
+    wall.location, wall.rotation_euler = (L / 2, 0.0, H / 2), ob.rotation_euler
+    blender.context.scene.collection.objects.link(wall)
     fast_settings(blender, 16)
     job = job_module.BakeJob(blender.context, to_settings(blender.context.scene.pdic),
                              output_folder=str(tmp_path / "maps"), cache_dir=tmp_path / "unwrap_cache")
     job.run()
     counters = job.result.stats["counters"]
-    assert counters["photon_portals"] == 1 and counters["lights"] == 0
-    assert not any("'Window'" in w for w in job.report.warnings)
+    assert counters["photon_portals"] == 2 and counters["lights"] == 0  # the window's and the wall's
+    assert not any("'Window'" in w or "'Wall'" in w for w in job.report.warnings)
     assert any("'Far Window'" in w and "outside" in w for w in job.report.warnings)
     assert np.isfinite(job.result.indirect["Room"]).all()
