@@ -103,7 +103,7 @@ def build(sun_angle: float = 0.0, lamp: float = 0.0, glass: float = 0.0, uplight
 
     sun_angle : the sun's angular diameter, degrees (0: hard shadows). lamp : watts of a point light
     of Blender's default radius (0.1 m) hanging 0.6 m under the ceiling over the table; 0: none.
-    glass : > 0 glazes the window with a 1 cm pane (an object of its own, not baked) of a Principled
+    glass : > 0 glazes the (south) window with a 1 cm pane (an object of its own, not baked) of a Principled
     BSDF of Alpha 1 - glass: each of its two faces passes ``glass`` of the light, in Cycles and PDIC.
     uplight : watts of a hard spot light 1 m above the floor aiming straight up at the ceiling (a 90-degree
     cone): a room lit mostly by light bounced off the ceiling; 0: none. portal : a Cycles light portal (an area
