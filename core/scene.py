@@ -95,13 +95,31 @@ class Geometry:
         return len(self.positions)
 
     def face_normals(self) -> np.ndarray:
-        """(T, 3) float64 unit geometric normals (right-handed winding); zero for degenerate triangles."""
-        return unit_face_normals(self.positions)
+        """(T, 3) float64 unit geometric normals (right-handed winding); zero for degenerate triangles.
+        Computed once (read-only), as :meth:`areas`."""
+        return self._derived("face_normals", lambda: unit_face_normals(self.positions))
 
     def areas(self) -> np.ndarray:
-        """(T,) float64 triangle areas in scene units squared."""
+        """(T,) float64 triangle areas in scene units squared, computed once (read-only): the texels' stage asks
+        per target and the emissive triangles' light per batch of points, each over the whole geometry (300
+        targets of 48^2 over Sponza's 66k triangles: their texels lifted in 5.7 s, 2.4 s with it computed once)."""
         p = self.positions
-        return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+        return self._derived("areas", lambda: 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]),
+                                                                    axis=1))
+
+    def _derived(self, name: str, compute) -> np.ndarray:
+        """``compute()`` the first time ``name`` is asked, read-only (a caller cannot change what the others
+        read); the arrays are frozen, so their functions never change. Two threads may both compute it once."""
+        cache = self.__dict__.setdefault("_derived_arrays", {})
+        value = cache.get(name)
+        if value is None:
+            value = compute()
+            value.setflags(write=False)
+            cache[name] = value
+        return value
+
+    def __getstate__(self) -> dict:  # pickled (a Dask worker's copy) without what it can compute again
+        return {k: v for k, v in self.__dict__.items() if k != "_derived_arrays"}
 
 
 # --------------------------------------------------------------------------- materials

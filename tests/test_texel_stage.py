@@ -6,6 +6,7 @@ records' side (ball queries) are there for speed (Cornell at 512x512: validity 3
 direct computation it replaces.
 """
 import numpy as np
+import pytest
 
 from pdic.core.interpolation import CacheLookup
 from pdic.core.irradiance_cache import IrradianceCache
@@ -199,3 +200,22 @@ def test_final_looks_up_samples_in_narrow_zones_and_preview_each_texel_once():
     # One point per texel (per triangle, where a texel spans two) against 2x2 samples per texel again.
     assert points["PREVIEW"] < 1.5 * covered
     assert points["FINAL"] - points["PREVIEW"] > 2 * covered
+
+
+def test_geometry_computes_face_normals_and_areas_once_read_only_and_not_pickled():
+    # The texels' stage asks per target and the emissive triangles' light per batch of points: each asks the
+    # whole geometry, so it is computed once; read-only, so no caller changes what the others read.
+    import pickle
+
+    from scenes import geometry
+
+    g = geometry(np.concatenate([quad([0, 0, 0], [2, 0, 0], [0, 3, 0]), quad([0, 0, 1], [1, 0, 0], [0, 0, 1])]))
+    areas, normals = g.areas(), g.face_normals()
+    assert g.areas() is areas and g.face_normals() is normals
+    np.testing.assert_allclose(areas, [3.0, 3.0, 0.5, 0.5])
+    np.testing.assert_allclose(normals[:2], [[0, 0, 1]] * 2)
+    for array in (areas, normals):
+        with pytest.raises(ValueError, match="read-only"):
+            array[0] = 0.0
+    copy = pickle.loads(pickle.dumps(g))  # a Dask worker's copy computes its own
+    assert "_derived_arrays" not in copy.__dict__ and np.array_equal(copy.areas(), areas)
