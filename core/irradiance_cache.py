@@ -567,10 +567,14 @@ def _clamped(tree: cKDTree, p_j: np.ndarray, R_j: np.ndarray, p: np.ndarray, R: 
     out = np.minimum(out, np.where(found, value, np.inf).min(axis=1))
     # A record beyond d_k cannot go below d_k + min R_j; the margin covers the kd-tree's distance
     # and norms() differing in the last bits.
-    bound = (dist[:, -1] + float(R_j.min())) * (1.0 - 1e-12)
+    R_least = float(R_j.min())
+    bound = (dist[:, -1] + R_least) * (1.0 - 1e-12)
     rows = np.flatnonzero(found[:, -1] & (dist[:, -1] < R) & (out >= bound))
     if len(rows):
-        lengths, j = ball_pairs(tree, p[rows], R[rows], workers)
+        # Nor can one farther than out - min R_j: the ball needs no more (a hole sample's R_k of metres
+        # paired it with thousands of records, listed one Python int at a time).
+        reach = np.minimum(R[rows], (out[rows] - R_least) * (1.0 + 1e-12))
+        lengths, j = ball_pairs(tree, p[rows], reach, workers)
         owner = np.repeat(rows, lengths)
         np.minimum.at(out, owner, np.take(R_j, j) + norms(np.take(p_j, j, axis=0) - np.take(p, owner, axis=0)))
     return out
