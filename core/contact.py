@@ -33,6 +33,7 @@ import weakref
 import numpy as np
 
 from .constants import COVERED_COS
+from .executor import row_chunks
 from .rays import RayCaster
 
 CONTACT_EPSILONS = 2.0
@@ -132,17 +133,20 @@ class ContactFaces:
         return under
 
     def _under_sheet(self, p: np.ndarray, triangle: np.ndarray) -> np.ndarray:
-        """:meth:`under_sheet`'s rays."""
+        """:meth:`under_sheet`'s rays, in passes of ROW_CHUNK samples."""
         under = np.zeros(len(p), bool)
-        n = np.take(self.face_normals, triangle, axis=0)
+        caster = self.caster.serial()
         top = SHEET_FARTHEST * self.epsilon
-        hits = self.caster.serial().intersect(p + top * n, -n, t_max=top - SHEET_NEAREST * self.epsilon, unit=True)
+        for s in row_chunks(len(p)):
+            n = np.take(self.face_normals, triangle[s], axis=0)
+            hits = caster.intersect(p[s] + top * n, -n, t_max=top - SHEET_NEAREST * self.epsilon, unit=True)
+            hit = np.flatnonzero(hits.hit)
+            sheet = hits.triangle[hit]
+            facing = np.einsum("ij,ij->i", np.take(self.face_normals, sheet, axis=0), n[hit])
+            opaque = True if self.caster.transmission is None else self.caster.transmission[sheet] == 0
+            # light passes a sheet that lets it through
+            under[s][hit[(np.abs(facing) >= COVERED_COS) & opaque]] = True
         self.solid_rays += len(p)
-        hit = np.flatnonzero(hits.hit)
-        sheet = hits.triangle[hit]
-        facing = np.einsum("ij,ij->i", np.take(self.face_normals, sheet, axis=0), n[hit])
-        opaque = True if self.caster.transmission is None else self.caster.transmission[sheet] == 0
-        under[hit[(np.abs(facing) >= COVERED_COS) & opaque]] = True  # light passes a sheet that lets it through
         return under
 
     def _touch(self, p: np.ndarray, triangle: np.ndarray) -> np.ndarray:

@@ -15,7 +15,7 @@ from scipy.spatial import cKDTree
 
 from .constants import (COVERAGE_DEPTH, COVERAGE_LIFT, R_K_DISTANCE_FLOOR, R_K_SAME_SIDE_COS, R_OVERSAMPLE,
                         SAME_SURFACE_COS, WALL_MASS_FLOOR)
-from .executor import slices
+from .executor import row_chunks, slices
 from .photons import PhotonMap
 from .record_walls import beyond_wall
 from .ward import accepted_from, weight_from
@@ -82,7 +82,10 @@ class PhotonDensity:
         call passes."""
         if self._sides is None:
             triangle = self.photons.triangle.astype(np.int64)
-            back = np.einsum("ij,ij->i", self.n.astype(np.float64), np.take(face_normals, triangle, axis=0)) < 0
+            back = np.empty(len(triangle), bool)
+            for s in row_chunks(len(triangle)):
+                n_face = np.take(face_normals, triangle[s], axis=0)
+                back[s] = np.einsum("ij,ij->i", self.n[s].astype(np.float64), n_face) < 0
             T = len(face_normals)
             self._sides = (np.bincount(triangle[~back], minlength=T), np.bincount(triangle[back], minlength=T))
         return self._sides

@@ -110,12 +110,13 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
             if len(fine):
                 progress.begin(f"Interpolating the cache at {len(fine):,} texel samples in small zones")
                 samples = valid[fine]  # the small-zone samples' indices into ``points``
-                E_fine, w_fine = interpolate(filled.cache, params.a, settings.gradients, points.p[samples],
-                                             points.n_shading[samples], executor, progress,
-                                             caster=_record_visibility(caster, params), sky=sky is not None,
-                                             layers=settings.refine, shared=shared)
-                covered = w_fine > 0
-                E[samples[covered]] = E_fine[covered]
+                E_fine, w_fine = interpolate(filled.cache, params.a, settings.gradients, points.p, points.n_shading,
+                                             executor, progress, caster=_record_visibility(caster, params),
+                                             sky=sky is not None, layers=settings.refine, shared=shared, rows=samples)
+                # Samples no record covers keep their texel's value; the rest take their own, written in place.
+                uncovered = np.flatnonzero(~(w_fine > 0))
+                E_fine[uncovered] = E[samples[uncovered]]
+                E[samples] = E_fine
         except BaseException:
             gathering.stop()
             raise

@@ -193,9 +193,11 @@ def equation3_sums(m: int, p, n, at, p_k, n_k, E_k, grad_r, grad_t, zone, rows, 
 
 def interpolate(cache: IrradianceCache, a: float, gradients: bool, p: np.ndarray, n: np.ndarray, executor,
                 progress, with_zone: bool = False, caster=None, margin: float = 0.0, sky: bool = False,
-                layers: bool = False, shared: SharedZones | None = None) -> tuple:
+                layers: bool = False, shared: SharedZones | None = None, rows: np.ndarray | None = None) -> tuple:
     """Equation 3 at points p, n (m, 3), chunked over the executor: (E (m, 3), w_sum (m,)), plus
     (m,) the smallest accepted zone radius ``with_zone`` (see :meth:`CacheLookup.irradiance_and_zone`).
+    rows : (m,) the points' rows of p and n, when they are some of a larger set's: each chunk takes its own
+        (a copy of millions of rows up front is fresh memory, faulted in on one thread), or None.
     sky : E (m, 6) with the records' gathered sky in channels 3-5 (see :attr:`CacheLookup.sky`).
 
     caster : a :class:`core.rays.RayCaster` (deviation: record-visibility, see :attr:`CacheLookup.caster`);
@@ -204,17 +206,19 @@ def interpolate(cache: IrradianceCache, a: float, gradients: bool, p: np.ndarray
     layers : test records in a layer under the point's surface too (see :attr:`CacheLookup.layers`).
     shared : the bake's zone grid over the records ``cache`` starts with (see :attr:`CacheLookup.shared`).
     """
+    m = len(p) if rows is None else len(rows)
     lookup = CacheLookup(cache, a, gradients, margin=margin, sky=sky, layers=layers,
-                         cell_per_zone=cell_per_zone(len(p), len(cache)), shared=shared)
+                         cell_per_zone=cell_per_zone(m, len(cache)), shared=shared)
 
     def run(index, s):
         chunk = copy.copy(lookup)  # shares the cache's arrays; a view of the BVH per chunk counts its own rays
         if caster is not None:
             chunk.caster = caster.serial()
-        part = (chunk.irradiance_and_zone if with_zone else chunk.irradiance)(p[s], n[s])
+        at = s if rows is None else rows[s]
+        part = (chunk.irradiance_and_zone if with_zone else chunk.irradiance)(p[at], n[at])
         return part, chunk.caster.rays_cast if caster is not None else 0  # returned: a Dask chunk runs elsewhere
 
-    results = executor.map_chunks(run, slices(len(p), TEXEL_CHUNK), progress)
+    results = executor.map_chunks(run, slices(m, TEXEL_CHUNK), progress)
     parts = [part for part, _ in results]
     if caster is not None:
         caster.rays_cast += sum(rays for _, rays in results)

@@ -13,6 +13,7 @@ import numpy as np
 
 from .constants import DIRECT_FOOTPRINT_SIDE
 from .crease_folding import off_centre_triangle, straddling_texels
+from .executor import row_chunks
 from .raster import (RasterMasks, checked_uv, footprint_points, on_centre_triangles, rasterize_rows, row_bands,
                      with_centre_footprints)
 from .scene import Scene
@@ -65,9 +66,7 @@ class TexelPoints:
         """
         if len(self) == 0:
             return self, np.zeros(0, np.int64)
-        key = _group_key(self.target, self.texel, self.triangle)
-        _, first, inverse = np.unique(key, axis=0 if key.ndim == 2 else None, return_index=True, return_inverse=True)
-        inverse = inverse.ravel()
+        first, inverse = _groups(_group_key(self.target, self.texel, self.triangle))
         groups = len(first)
         w = self.weight.astype(np.float64)
         total = np.bincount(inverse, weights=w, minlength=groups)
@@ -88,6 +87,19 @@ class TexelPoints:
                              self.target[first], self.texel[first],
                              np.bincount(inverse, weights=self.weight, minlength=groups).astype(np.float32))
         return merged, inverse
+
+
+def _groups(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(first (g,), inverse (n,)): ``np.unique(key, return_index=True, return_inverse=True)``'s, groups in key
+    order. Keys already sorted, as rasterised samples come (by target, texel, triangle), are grouped where they
+    change, without np.unique's sort and its gathers over every row."""
+    if key.ndim == 1 and len(key) and not (key[1:] < key[:-1]).any():
+        starts = np.empty(len(key), bool)
+        starts[0] = True
+        np.not_equal(key[1:], key[:-1], out=starts[1:])
+        return np.flatnonzero(starts), np.cumsum(starts) - 1
+    _, first, inverse = np.unique(key, axis=0 if key.ndim == 2 else None, return_index=True, return_inverse=True)
+    return first, inverse.ravel()
 
 
 def _group_key(target: np.ndarray, texel: np.ndarray, triangle: np.ndarray) -> np.ndarray:
@@ -238,11 +250,14 @@ def _on_centre_triangle(texel, tri, b, centre_triangle, uv, width, height):
 
 def on_surface(geometry, face_n, tri, b):
     """Position, shading normal and geometric normal (n, 3) of barycentrics b (n, 3) on triangles tri (n,);
-    face_n : (T, 3) the geometry's :meth:`~core.scene.Geometry.face_normals`."""
-    p = _blend(b, np.take(geometry.positions.reshape(-1, 9), tri, axis=0))
-    n_s = _blend(b, np.take(geometry.normals.reshape(-1, 9), tri, axis=0).astype(np.float64))
+    face_n : (T, 3) the geometry's :meth:`~core.scene.Geometry.face_normals`. In passes of ROW_CHUNK rows."""
+    p, n_s = np.empty((len(tri), 3)), np.empty((len(tri), 3))
     n_g = np.take(face_n, tri, axis=0)
-    return p, _normalise_or(n_s, n_g), n_g
+    corners, corner_normals = geometry.positions.reshape(-1, 9), geometry.normals.reshape(-1, 9)
+    for s in row_chunks(len(tri)):
+        p[s] = _blend(b[s], np.take(corners, tri[s], axis=0))
+        n_s[s] = _normalise_or(_blend(b[s], np.take(corner_normals, tri[s], axis=0).astype(np.float64)), n_g[s])
+    return p, n_s, n_g
 
 
 def _blend(b, corners):

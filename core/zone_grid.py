@@ -17,6 +17,7 @@ import threading
 import numpy as np
 
 from . import native_kernels
+from .executor import row_chunks
 
 CELL_PER_ZONE = 3.0
 """Cell side / the median zone radius; the pairs found do not depend on it. A bake builds about ten
@@ -70,13 +71,14 @@ class ZoneGrid:
         span = hi - lo + 1
         counts = span.prod(axis=1)
         record = np.repeat(np.arange(K, dtype=np.int64), counts)
-        # Offset of each entry inside its record's box, unravelled over the box's span.
-        local = np.arange(len(record), dtype=np.int64) - np.repeat(np.cumsum(counts) - counts, counts)
-        s, lo_r = np.take(span, record, axis=0), np.take(lo, record, axis=0)
-        ix = lo_r[:, 0] + local % s[:, 0]
-        iy = lo_r[:, 1] + (local // s[:, 0]) % s[:, 1]
-        iz = lo_r[:, 2] + local // (s[:, 0] * s[:, 1])
-        key = self._key(ix, iy, iz)
+        starts = np.cumsum(counts) - counts
+        key = np.empty(len(record), np.int64)
+        for rows in row_chunks(len(record)):  # millions of entries: passes whose temporaries the allocator reuses
+            r = record[rows]
+            # Offset of each entry inside its record's box, unravelled over the box's span.
+            local = np.arange(rows.start, rows.stop, dtype=np.int64) - starts[r]
+            sx, sy = span[r, 0], span[r, 1]
+            key[rows] = self._key(lo[r, 0] + local % sx, lo[r, 1] + (local // sx) % sy, lo[r, 2] + local // (sx * sy))
         order = np.argsort(key, kind="stable")  # stable: records ascend within a cell
         key = key[order]
         self.records = record[order]
@@ -87,7 +89,8 @@ class ZoneGrid:
         n_cells = int(self.dims.prod())
         if n_cells <= DENSE_CELLS_PER_ENTRY * max(self.entries, 1):
             # A dense table of every cell's first entry: one read per point instead of a binary search.
-            self.first = np.concatenate([[0], np.cumsum(np.bincount(key, minlength=n_cells))])
+            self.first = np.zeros(n_cells + 1, np.int64)
+            np.cumsum(np.bincount(key, minlength=n_cells), out=self.first[1:])
             self.cells = None
         else:
             self.cells, self.start = np.unique(key, return_index=True)

@@ -1,0 +1,107 @@
+"""Row-wise work over millions of rows (texel samples, photons, zone-grid entries) runs in passes of
+ROW_CHUNK rows (core.executor.row_chunks), so its temporaries stay small: the same values, to the bit,
+whatever the pass size."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dataclasses import replace
+
+from pdic.core import executor
+from pdic.core.executor import Executor, Progress
+from pdic.core.interpolation import interpolate
+from pdic.core.irradiance_cache import IrradianceCache
+from pdic.core.pipeline import bake
+from pdic.core.rays import RayCaster
+from pdic.core.scene import World
+from pdic.core.settings import preset
+from pdic.core.texels import _groups
+from pdic.core.zone_grid import ZoneGrid
+
+from scenes import quad, quad_scene
+
+X, Y, Z = np.eye(3)
+
+
+def _maps(result) -> dict:
+    return {f"{kind} {name}": image for kind in ("direct", "indirect")
+            for name, image in getattr(result, kind).items()}
+
+
+def _decal_and_box():
+    """A 4 x 4 m ground under a white sky, a closed unit box standing on it and a 1 m decal half a ray
+    offset over it (contact faces, a sheet, hole records, texels in narrow zones looked up per sample)."""
+    ground = quad(np.array([-2.0, -2.0, 0.0]), 4 * X, 4 * Y)
+    box = [quad(np.zeros(3), Y, X), quad(Z, X, Y), quad(np.zeros(3), X, Z), quad(Y, Z, X), quad(np.zeros(3), Z, Y),
+           quad(X, Y, Z)]
+    corner = np.array([-1.5, -1.5, 0.0])
+    eps = RayCaster(np.concatenate([ground, *box, quad(corner, X, Y)])).epsilon
+    faces = [ground, *box, quad(corner + 0.5 * eps * Z, X, Y)]
+    scene = quad_scene(faces, {"ground": (0, 48), "bottom": (1, 8), "top": (2, 8), "decal": (7, 16)}, [])
+    return replace(scene, world=World(np.full(3, 1.0)))
+
+
+def test_a_bake_in_passes_of_a_few_rows_gives_the_maps_of_one_pass(monkeypatch):
+    """The scene baked at Final with the default passes and with passes of 97 rows: every map is the same
+    to the bit; the ground under the decal and the box's bottom are black, the open ground lit."""
+    scene, settings = _decal_and_box(), preset("final")
+    whole = bake(scene, settings)
+    monkeypatch.setattr(executor, "ROW_CHUNK", 97)
+    passes = bake(scene, settings)
+    for kind in ("direct", "indirect"):
+        for name, image in getattr(whole, kind).items():
+            assert np.array_equal(image, getattr(passes, kind)[name]), (kind, name)
+    assert whole.stats["counters"]["texel_samples_under_sheet"] >= 100
+    ground = whole.as_cycles("ground")
+    assert ground[9:15, 9:15].max() == 0 and ground[40:46, 40:46].mean() > 0.5  # under the decal; open ground
+    assert whole.as_cycles("bottom").max() == 0
+
+
+def test_equation_3_at_some_rows_of_a_set_is_equation_3_at_those_points():
+    """interpolate(rows=...) looks up rows of p, n chunk by chunk: what it gives at the points themselves."""
+    rng = np.random.default_rng(5)
+    K = 2000
+    p_k = np.column_stack([rng.random((K, 2)) * 4.0, np.zeros(K)])
+    cache = IrradianceCache(p=p_k, n=np.tile(Z, (K, 1)), E=rng.random((K, 3)), R=0.2 + 0.3 * rng.random(K),
+                            grad_r=0.1 * rng.normal(size=(K, 3, 3)), grad_t=0.1 * rng.normal(size=(K, 3, 3)),
+                            photons_used=np.zeros(K, np.int32), hole=np.zeros(K, bool), refined=np.ones(K, bool))
+    p = np.column_stack([rng.random((90000, 2)) * 4.0, np.zeros(90000)])
+    n = np.tile(Z, (len(p), 1))
+    rows = np.sort(rng.choice(len(p), 70000, replace=False))
+    with Executor(2) as pool:
+        got = interpolate(cache, 0.4, True, p, n, pool, Progress(), with_zone=True, rows=rows)
+        want = interpolate(cache, 0.4, True, p[rows], n[rows], pool, Progress(), with_zone=True)
+    assert (want[1] > 0).mean() > 0.9
+    for a, b in zip(got, want):
+        assert np.array_equal(a, b)
+
+
+def test_a_zone_grid_built_in_passes_lists_what_one_pass_lists(monkeypatch):
+    rng = np.random.default_rng(3)
+    p = rng.random((700, 3)) * [4.0, 3.0, 0.5]
+    zone = 0.02 + 0.5 * rng.random(700) ** 3
+    whole = ZoneGrid(p, zone)
+    monkeypatch.setattr(executor, "ROW_CHUNK", 13)
+    passes = ZoneGrid(p, zone)
+    assert whole.entries == passes.entries > 13 * 50
+    for name in ("records", "entry_p", "entry_zone2", "first", "cells", "start", "stop"):
+        assert np.array_equal(getattr(whole, name, None), getattr(passes, name, None)), name
+    q = rng.random((5000, 3)) * [4.0, 3.0, 0.5]
+    for a, b in zip(whole.pairs(q), passes.pairs(q)):
+        assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("presorted", [True, False])
+def test_sample_groups_are_np_uniques(presorted):
+    """Keys in order (rasterised samples) are grouped where they change; others by np.unique: the same
+    first indices and inverse either way."""
+    rng = np.random.default_rng(4)
+    for n in (1, 2, 50, 20000):
+        key = rng.integers(0, max(n // 4, 1), n)
+        if presorted:
+            key = np.sort(key)
+        first, inverse = _groups(key)
+        _, want_first, want_inverse = np.unique(key, return_index=True, return_inverse=True)
+        assert np.array_equal(first, want_first) and np.array_equal(inverse, want_inverse.ravel())
+        assert np.array_equal(key[first][inverse], key)
