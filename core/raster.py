@@ -34,7 +34,9 @@ from .constants import CENTRE_FOOTPRINT_PER_AXIS, DIRECT_FOOTPRINT_SIDE
 # Candidate points per vectorised batch (~40 bytes each in flight, so ~80 MB).
 BATCH_ELEMENTS = 1 << 21
 # Texel rows per band of :func:`rasterize_rows` (core/texels.py rasterises a map's bands on the bake's threads).
-BAND_ROWS = 128
+# A band's temporaries stay a few MB (Sponza 16 texels/m, 1388 texels wide: 128 rows took 2.4-3.9 s, 1.4-4.6 s
+# of it in the kernel faulting in fresh pages; 32 rows 1.7-1.8 s, 0.3-0.4 s there).
+BAND_ROWS = 32
 # A point whose barycentrics are all >= -INSIDE_EPS counts as inside (closes
 # float gaps on shared edges; duplicates are then resolved to one triangle).
 INSIDE_EPS = 1e-9
