@@ -113,10 +113,7 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
                 E_fine, w_fine = interpolate(filled.cache, params.a, settings.gradients, points.p, points.n_shading,
                                              executor, progress, caster=_record_visibility(caster, params),
                                              sky=sky is not None, layers=settings.refine, shared=shared, rows=samples)
-                # Samples no record covers keep their texel's value; the rest take their own, written in place.
-                uncovered = np.flatnonzero(~(w_fine > 0))
-                E_fine[uncovered] = E[samples[uncovered]]
-                E[samples] = E_fine
+                _write_fine(E, samples, E_fine, w_fine)
         except BaseException:
             gathering.stop()
             raise
@@ -164,6 +161,14 @@ class _CreviceGathering:
 def _record_visibility(caster, params: CacheParameters):
     """The caster lookups test record visibility with (deviation: record-visibility), or None."""
     return caster if params.record_visibility else None
+
+
+def _write_fine(E: np.ndarray, samples: np.ndarray, E_fine: np.ndarray, w_fine: np.ndarray) -> None:
+    """E[samples] = E_fine where a record covered the sample (w_fine > 0); the others keep their texel's value.
+    In place, E_fine included: no copy of millions of rows. samples : (f,) distinct rows of E."""
+    uncovered = np.flatnonzero(~(w_fine > 0))
+    E_fine[uncovered] = E[samples[uncovered]]
+    E[samples] = E_fine
 
 
 def _fine_samples(smallest, sample_to_point, texel_size, settings) -> np.ndarray:

@@ -197,7 +197,8 @@ def interpolate(cache: IrradianceCache, a: float, gradients: bool, p: np.ndarray
     """Equation 3 at points p, n (m, 3), chunked over the executor: (E (m, 3), w_sum (m,)), plus
     (m,) the smallest accepted zone radius ``with_zone`` (see :meth:`CacheLookup.irradiance_and_zone`).
     rows : (m,) the points' rows of p and n, when they are some of a larger set's: each chunk takes its own
-        (a copy of millions of rows up front is fresh memory, faulted in on one thread), or None.
+        (a copy of millions of rows up front is fresh memory, faulted in on one thread; a Dask executor ships
+        p and n whole), or None.
     sky : E (m, 6) with the records' gathered sky in channels 3-5 (see :attr:`CacheLookup.sky`).
 
     caster : a :class:`core.rays.RayCaster` (deviation: record-visibility, see :attr:`CacheLookup.caster`);

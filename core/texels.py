@@ -97,7 +97,7 @@ def _groups(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         starts = np.empty(len(key), bool)
         starts[0] = True
         np.not_equal(key[1:], key[:-1], out=starts[1:])
-        return np.flatnonzero(starts), np.cumsum(starts) - 1
+        return np.flatnonzero(starts), np.cumsum(starts, dtype=np.intp) - 1
     _, first, inverse = np.unique(key, axis=0 if key.ndim == 2 else None, return_index=True, return_inverse=True)
     return first, inverse.ravel()
 

@@ -3,13 +3,14 @@ ROW_CHUNK rows (core.executor.row_chunks), so its temporaries stay small: the sa
 whatever the pass size."""
 from __future__ import annotations
 
-import numpy as np
-import pytest
-
 from dataclasses import replace
 
+import numpy as np
+
 from pdic.core import executor
+from pdic.core.density import PhotonDensity
 from pdic.core.executor import Executor, Progress
+from pdic.core.hole_records import _write_fine
 from pdic.core.interpolation import interpolate
 from pdic.core.irradiance_cache import IrradianceCache
 from pdic.core.pipeline import bake
@@ -92,16 +93,43 @@ def test_a_zone_grid_built_in_passes_lists_what_one_pass_lists(monkeypatch):
         assert np.array_equal(a, b)
 
 
-@pytest.mark.parametrize("presorted", [True, False])
-def test_sample_groups_are_np_uniques(presorted):
-    """Keys in order (rasterised samples) are grouped where they change; others by np.unique: the same
-    first indices and inverse either way."""
+def test_sorted_sample_keys_are_grouped_as_np_unique_groups_them():
+    """Keys in order (rasterised samples) are grouped where they change, without a sort: np.unique's first
+    indices and inverse, dtypes included; unsorted and row keys go to np.unique."""
     rng = np.random.default_rng(4)
     for n in (1, 2, 50, 20000):
-        key = rng.integers(0, max(n // 4, 1), n)
-        if presorted:
-            key = np.sort(key)
+        key = np.sort(rng.integers(0, max(n // 4, 1), n))
         first, inverse = _groups(key)
         _, want_first, want_inverse = np.unique(key, return_index=True, return_inverse=True)
         assert np.array_equal(first, want_first) and np.array_equal(inverse, want_inverse.ravel())
-        assert np.array_equal(key[first][inverse], key)
+        assert first.dtype == want_first.dtype and inverse.dtype == want_inverse.dtype and inverse.ndim == 1
+    unsorted = np.array([5, 3, 5, 1, 3])
+    first, inverse = _groups(unsorted)
+    assert first.tolist() == [3, 1, 0] and inverse.tolist() == [2, 1, 2, 0, 1]
+    rows = np.array([[0, 2, 1], [0, 1, 7], [0, 2, 1]])
+    first, inverse = _groups(rows)
+    assert first.tolist() == [1, 0] and inverse.tolist() == [1, 0, 1]
+
+
+def test_fine_samples_write_their_own_light_where_a_record_covers_them():
+    """The fine-zone lookup's write-back: covered samples take their own E, the rest keep their texel's."""
+    E = np.arange(18, dtype=np.float64).reshape(6, 3)
+    samples = np.array([1, 3, 4])
+    E_fine = np.full((3, 3), -1.0)
+    _write_fine(E, samples, E_fine, np.array([0.5, 0.0, np.nan]))
+    assert E[1].tolist() == [-1.0] * 3 and E[3].tolist() == [9.0, 10.0, 11.0] and E[4].tolist() == [12.0, 13.0, 14.0]
+    assert E[[0, 2, 5]].tolist() == [[0.0, 1.0, 2.0], [6.0, 7.0, 8.0], [15.0, 16.0, 17.0]]
+
+
+def test_photons_per_side_in_passes_counts_what_one_pass_counts(monkeypatch):
+    """Each triangle's photons on its front and its back (the photons' sides taken in passes of 7)."""
+    scene = _decal_and_box()
+    photons = bake(scene, preset("preview")).photons
+    face_normals = scene.geometry.face_normals()
+    front, back = PhotonDensity(photons).photons_per_side(face_normals)
+    monkeypatch.setattr(executor, "ROW_CHUNK", 7)
+    assert all(np.array_equal(a, b) for a, b in zip((front, back), PhotonDensity(photons).photons_per_side(face_normals)))
+    behind = np.einsum("ij,ij->i", photons.n.astype(np.float64), face_normals[photons.triangle]) < 0
+    assert np.array_equal(back, np.bincount(photons.triangle[behind], minlength=len(face_normals)))
+    assert front.sum() + back.sum() == len(photons.triangle) > 10000
+    assert front[-2:].sum() > 100 and back[:2].sum() > 100  # the decal's top, the ground's underside (open sky)
