@@ -51,7 +51,7 @@ class DirectResult:
     """Direct irradiance of a chunk of n points, with work counters.
 
     E : (n, 3) float64 front-side irradiance, W/m^2 (texel value is E / pi).
-    edge_lit, edge_open : (n, 3) float64 the edge evidence (zeros unless asked for,
+    edge_lit, edge_open : (n, 3) float64 the edge evidence (None unless asked for,
         :func:`edge_evidence`): irradiance of samples independent of E's, and the same with every
         ray unblocked; edge_lit / edge_open is a lit share, 1 or 0 away from shadow edges.
     shadow_rays : rays traced per light kind (keys of :data:`LIGHT_KINDS`).
@@ -70,7 +70,10 @@ class DirectResult:
     def concatenate(results: list["DirectResult"]) -> "DirectResult":
         """Join chunk results in order: E stacked, counters summed."""
         def stack(name):
-            return np.concatenate([getattr(r, name) for r in results]) if results else np.zeros((0, 3))
+            parts = [getattr(r, name) for r in results]
+            if any(part is None for part in parts):  # edge evidence no chunk was asked for
+                return None
+            return np.concatenate(parts) if parts else np.zeros((0, 3))
 
         rays = {k: sum(r.shadow_rays.get(k, 0) for r in results) for k in LIGHT_KINDS}
         skipped: dict = {}
@@ -112,7 +115,8 @@ def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, norma
         raise ValueError("direct_irradiance: non-finite receiving points")
     if samples < 1:
         raise ValueError(f"direct_irradiance: samples must be >= 1, got {samples}")
-    out = DirectResult(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)))
+    edges = edge_rng is not None
+    out = DirectResult(np.zeros((n, 3)), np.zeros((n, 3)) if edges else None, np.zeros((n, 3)) if edges else None)
     if n == 0:
         return out
     for emitter in scene.emitters():

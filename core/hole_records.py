@@ -100,9 +100,7 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
                                       settings, executor, progress)
         try:
             progress.begin("Interpolating the cache at texels")
-            # Only the merged points outlive this line: a copy of every valid sample's eight columns
-            # (1.2 GB on Sponza at 2048^2) would stay resident through the hole records.
-            merged, sample_to_point = points.take(valid, executor.map).per_texel()  # inside samples not averaged in
+            merged, sample_to_point = points.per_texel(valid)  # inside samples not averaged in
             filled = fill_holes(scene, caster, density, sources, cache, merged, params, settings, executor, progress,
                                 texel_size, sky, shared)
             E[valid] = filled.E[sample_to_point]

@@ -70,6 +70,24 @@ def test_per_texel_points_are_weighted_centroids_per_triangle():
     assert np.allclose(merged.p[index[3]], p[3]) and merged.triangle[index[3]] == 6
 
 
+def test_per_texel_of_some_rows_is_per_texel_of_their_copy_to_the_bit():
+    """The texel stage merges the valid samples by their indices, without copying them first."""
+    rng = np.random.default_rng(5)
+    m = 3000
+    n = rng.normal(size=(m, 3))
+    points = TexelPoints(p=rng.normal(size=(m, 3)), n_shading=n, n_geometric=n / np.linalg.norm(n, axis=1)[:, None],
+                         triangle=rng.integers(0, 9, m), barycentric=rng.random((m, 2)),
+                         target=rng.integers(0, 2, m).astype(np.int32), texel=rng.integers(0, 200, m),
+                         weight=rng.random(m).astype(np.float32))
+    for rows in (np.sort(rng.choice(m, 1700, replace=False)), rng.permutation(m)[:900], np.zeros(0, np.int64)):
+        merged, index = points.per_texel(rows)
+        copied, copied_index = points.take(rows).per_texel()
+        assert len(index) == len(rows) and np.array_equal(index, copied_index)
+        for field in TexelPoints.__dataclass_fields__:
+            a, b = getattr(merged, field), getattr(copied, field)
+            assert a.dtype == b.dtype and np.array_equal(a, b), field
+
+
 def test_per_texel_groups_come_in_target_texel_triangle_order_whatever_the_key_size():
     """One int64 key where (target, texel, triangle) fit in it, the rows where not: same groups, same order."""
     from pdic.core.texels import _group_key
