@@ -130,6 +130,8 @@ def main(argv=None) -> None:
     if unknown:
         raise SystemExit(f"--scenes: unknown {unknown}; known: {', '.join(SCENES)}")
     qualities = [q.strip().upper() for q in args.qualities.split(",") if q.strip()]
+    if args.baseline is not None and not (args.baseline / "pdic_bootstrap.py").is_file():
+        raise SystemExit(f"--baseline {args.baseline}: not a PDIC checkout (no pdic_bootstrap.py there)")
     checkouts = [("this", ROOT)] + ([("baseline", args.baseline.resolve())] if args.baseline else [])
     rows = []
     for scene in scenes:
