@@ -13,7 +13,7 @@ import numpy as np
 
 from .constants import DIRECT_FOOTPRINT_SIDE
 from .crease_folding import off_centre_triangle, straddling_texels
-from .executor import row_chunks
+from .executor import group_chunks, row_chunks
 from .raster import (RasterMasks, checked_uv, footprint_points, on_centre_triangles, rasterize_rows, row_bands,
                      with_centre_footprints)
 from .scene import Scene
@@ -61,66 +61,118 @@ class TexelPoints:
         centroid stays on the surface. Returns (merged points, (n,) index of each
         sample's merged point); weights add up, normals are re-normalised.
         rows : (m,) integer indices of the samples to merge, the others left out (the index returned is then
-            (m,)), or None for all. Read column by column: a copy of the rows' eight columns first would be
-            80 bytes a sample (Sponza 16 texels/m: 4.5 M samples, fresh pages on every bake).
+            (m,)), or None for all.
+        Groups are summed in passes of whole groups (:func:`~core.executor.group_chunks`), each sample read
+        by its index: whole-column temporaries would be fresh memory on every bake (Sponza at 2048^2: 11 M
+        samples, 1.9 GB of them, 1.7-9.4 s mostly in the kernel); a group's sums are the same to the bit.
         """
-        def pick(values: np.ndarray) -> np.ndarray:
-            return values if rows is None else np.take(values, rows, axis=0)
-
         m = len(self) if rows is None else len(rows)
         if m == 0:
             return self.take(np.zeros(0, np.int64)), np.zeros(0, np.int64)
-        first, inverse = _groups(_group_key(pick(self.target), pick(self.texel), pick(self.triangle)))
+        order, first, inverse = _sorted_groups(_group_key(self.target, self.texel, self.triangle, rows))
+        # The samples in group order (None: as they are); a stable sort keeps each group's own order.
+        base = rows if order is None else (order if rows is None else np.take(rows, order))
         groups = len(first)
-        first_row = first if rows is None else rows[first]
-        weight = pick(self.weight)
-        w = weight.astype(np.float64)
-        total = np.bincount(inverse, weights=w, minlength=groups)
-        # Equal weights stand in where a group's weights sum to zero, so the centroid stays finite.
-        w = np.where(total[inverse] > 0, w, 1.0)
-        total = np.bincount(inverse, weights=w, minlength=groups)
+        p, n_s, barycentric = np.empty((groups, 3)), np.empty((groups, 3)), np.empty((groups, 2))
+        weight_sum = np.empty(groups)
+        for s in group_chunks(first, m):
+            def take(values: np.ndarray) -> np.ndarray:
+                return values[s] if base is None else np.take(values, base[s], axis=0)
 
-        def mean(values):
-            cols = [np.bincount(inverse, weights=w * pick(values[:, c]), minlength=groups) / total
-                    for c in range(values.shape[1])]
-            return np.stack(cols, axis=1)
-
+            g = slice(int(inverse[s.start]), int(inverse[s.stop - 1]) + 1)
+            local, size = inverse[s] - g.start, g.stop - g.start
+            weight = take(self.weight)
+            w = weight.astype(np.float64)
+            total = np.bincount(local, weights=w, minlength=size)
+            # Equal weights stand in where a group's weights sum to zero, so the centroid stays finite.
+            w = np.where(total[local] > 0, w, 1.0)
+            total = np.bincount(local, weights=w, minlength=size)
+            for values, out in ((self.p, p), (self.n_shading, n_s), (self.barycentric, barycentric)):
+                values = take(values)  # the chunk's rows first: np.take copies a strided column whole
+                for c in range(values.shape[1]):
+                    out[g, c] = np.bincount(local, weights=w * values[:, c], minlength=size) / total
+            weight_sum[g] = np.bincount(local, weights=weight, minlength=size)
+        first_row = first if base is None else base[first]
         n_g = np.take(self.n_geometric, first_row, axis=0)
-        n_s = mean(self.n_shading)
         length = np.linalg.norm(n_s, axis=1, keepdims=True)
         n_s = np.where(length > 1e-12, n_s / np.maximum(length, 1e-300), n_g)
-        merged = TexelPoints(mean(self.p), n_s, n_g, np.take(self.triangle, first_row), mean(self.barycentric),
+        merged = TexelPoints(p, n_s, n_g, np.take(self.triangle, first_row), barycentric,
                              np.take(self.target, first_row), np.take(self.texel, first_row),
-                             np.bincount(inverse, weights=weight, minlength=groups).astype(np.float32))
-        return merged, inverse
+                             weight_sum.astype(np.float32))
+        return merged, _unsorted(order, inverse)
+
+
+def _sorted_groups(key: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+    """(order, first, inverse) of keys (n,) or rows (n, k), n >= 1: ``order`` (n,) the stable sort of the keys
+    (rows lexicographically), None when they are in order already, as rasterised samples come (by target,
+    texel, triangle); ``first`` (g,) where each group of equal keys starts and ``inverse`` (n,) intp each
+    sorted key's group, groups in key order."""
+    if key.ndim == 1:
+        order = None if not (key[1:] < key[:-1]).any() else np.argsort(key, kind="stable")
+    else:
+        order = np.lexsort(key.T[::-1])
+    if order is not None:
+        key = np.take(key, order, axis=0)
+    starts = np.empty(len(key), bool)
+    starts[0] = True
+    if key.ndim == 1:
+        np.not_equal(key[1:], key[:-1], out=starts[1:])
+    else:
+        np.any(key[1:] != key[:-1], axis=1, out=starts[1:])
+    inverse = np.cumsum(starts, dtype=np.intp)
+    inverse -= 1
+    return order, np.flatnonzero(starts), inverse
+
+
+def _unsorted(order: np.ndarray | None, inverse: np.ndarray) -> np.ndarray:
+    """``inverse`` of keys in ``order`` (:func:`_sorted_groups`) for the keys as they were."""
+    if order is None:
+        return inverse
+    out = np.empty_like(inverse)
+    out[order] = inverse
+    return out
 
 
 def _groups(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(first (g,), inverse (n,)): ``np.unique(key, return_index=True, return_inverse=True)``'s, groups in key
-    order. Keys already sorted, as rasterised samples come (by target, texel, triangle), are grouped where they
-    change, without np.unique's sort and its gathers over every row."""
-    if key.ndim == 1 and len(key) and not (key[1:] < key[:-1]).any():
-        starts = np.empty(len(key), bool)
-        starts[0] = True
-        np.not_equal(key[1:], key[:-1], out=starts[1:])
-        return np.flatnonzero(starts), np.cumsum(starts, dtype=np.intp) - 1
-    _, first, inverse = np.unique(key, axis=0 if key.ndim == 2 else None, return_index=True, return_inverse=True)
-    return first, inverse.ravel()
+    """(first (g,), inverse (n,)): ``np.unique(key, return_index=True, return_inverse=True)``'s (``axis=0`` for
+    rows), groups in key order; keys already in order are grouped where they change, without a sort."""
+    if len(key) == 0:
+        return np.zeros(0, np.intp), np.zeros(0, np.intp)
+    order, first, inverse = _sorted_groups(key)
+    return (first if order is None else order[first]), _unsorted(order, inverse)
 
 
-def _group_key(target: np.ndarray, texel: np.ndarray, triangle: np.ndarray) -> np.ndarray:
-    """Keys (n,) or (n, 3) int64 whose sorted order is the lexicographic order of (target, texel, triangle).
+def _group_key(target: np.ndarray, texel: np.ndarray, triangle: np.ndarray, rows: np.ndarray | None = None
+               ) -> np.ndarray:
+    """Keys (n,) or (n, 3) int64 whose sorted order is the lexicographic order of (target, texel, triangle),
+    of the samples ``rows`` (n,) selects (None: all).
 
     One int64 in mixed radix when the three fit (np.unique over rows costs ~9x more: Sponza at 16
-    texels/m, 3.9 M samples, 1.30 s against 0.15 s), else the rows themselves.
+    texels/m, 3.9 M samples, 1.30 s against 0.15 s), else the rows themselves. The radix is taken over all
+    samples, not only ``rows``: the keys' order, all they are for, is the same. Built in passes
+    (:func:`~core.executor.row_chunks`) into one array.
     """
-    columns = [np.asarray(c, np.int64) for c in (target, texel, triangle)]
+    columns = (target, texel, triangle)
+    n = len(texel) if rows is None else len(rows)
+
+    def part(column: np.ndarray, s: slice) -> np.ndarray:
+        return np.asarray(column[s] if rows is None else np.take(column, rows[s]), np.int64)
+
+    whole = slice(None)
     if len(texel) == 0 or min(int(c.min()) for c in columns) < 0:
-        return np.stack(columns, axis=1)
-    texels, triangles = int(columns[1].max()) + 1, int(columns[2].max()) + 1
-    if (int(columns[0].max()) + 1) * texels * triangles >= 2 ** 63:
-        return np.stack(columns, axis=1)
-    return (columns[0] * texels + columns[1]) * triangles + columns[2]
+        return np.stack([part(c, whole) for c in columns], axis=1)
+    texels, triangles = int(texel.max()) + 1, int(triangle.max()) + 1
+    if (int(target.max()) + 1) * texels * triangles >= 2 ** 63:
+        return np.stack([part(c, whole) for c in columns], axis=1)
+    key = np.empty(n, np.int64)
+    for s in row_chunks(n):
+        k = part(target, s)
+        k *= texels
+        k += part(texel, s)
+        k *= triangles
+        k += part(triangle, s)
+        key[s] = k
+    return key
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ from pdic.core.pipeline import bake
 from pdic.core.rays import RayCaster
 from pdic.core.scene import World
 from pdic.core.settings import preset
-from pdic.core.texels import _groups
+from pdic.core.texels import TexelPoints, _groups
 from pdic.core.zone_grid import ZoneGrid
 
 from scenes import quad, quad_scene
@@ -133,3 +133,48 @@ def test_photons_per_side_in_passes_counts_what_one_pass_counts(monkeypatch):
     assert np.array_equal(back, np.bincount(photons.triangle[behind], minlength=len(face_normals)))
     assert front.sum() + back.sum() == len(photons.triangle) > 10000
     assert front[-2:].sum() > 100 and back[:2].sum() > 100  # the decal's top, the ground's underside (open sky)
+
+
+def _per_texel_at_once(points: TexelPoints, rows: np.ndarray):
+    """per_texel's centroids over all of ``rows``' samples at once (np.unique's groups, whole-column sums)."""
+    key = np.stack([points.target[rows], points.texel[rows], points.triangle[rows]], axis=1)
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.ravel()
+    weight = points.weight[rows]
+    total = np.bincount(inverse, weights=weight.astype(np.float64))
+    w = np.where(total[inverse] > 0, weight.astype(np.float64), 1.0)
+    total = np.bincount(inverse, weights=w)
+
+    def mean(values):
+        return np.stack([np.bincount(inverse, weights=w * values[rows, c]) / total
+                         for c in range(values.shape[1])], axis=1)
+
+    return mean(points.p), mean(points.n_shading), mean(points.barycentric), first, inverse
+
+
+def test_per_texel_sums_each_group_in_one_pass_as_all_rows_at_once(monkeypatch):
+    """Samples merged per (target, texel, triangle) in passes of 7 rows, each group whole in one pass: the
+    centroids (and their weights, normals unnormalised) are those of one pass over every row, to the bit,
+    with keys in order (as rasterised) and not, groups of zero weight included."""
+    monkeypatch.setattr(executor, "ROW_CHUNK", 7)
+    rng = np.random.default_rng(6)
+    m = 400
+    weight = rng.random(m).astype(np.float32)
+    weight[:12] = 0.0  # the first texel's samples: a group whose weights sum to zero
+    points = TexelPoints(p=rng.normal(size=(m, 3)), n_shading=rng.normal(size=(m, 3)),
+                         n_geometric=rng.normal(size=(m, 3)), triangle=rng.integers(0, 3, m),
+                         barycentric=rng.random((m, 2)), target=np.zeros(m, np.int32),
+                         texel=np.sort(rng.integers(0, 40, m)), weight=weight)
+    points = points.take(np.lexsort((points.triangle, points.texel)))  # in key order, as rasterised
+    points = replace(points, texel=np.where(np.arange(m) < 12, 0, points.texel))
+    for rows in (np.arange(m), np.sort(rng.choice(m, 300, replace=False)), rng.permutation(m)[:350]):
+        merged, inverse = points.per_texel(rows)
+        p, n_s, bary, first, want_inverse = _per_texel_at_once(points, rows)
+        assert np.array_equal(inverse, want_inverse) and inverse.dtype == np.intp
+        assert np.array_equal(merged.p, p) and np.array_equal(merged.barycentric, bary)
+        length = np.linalg.norm(n_s, axis=1, keepdims=True)
+        assert np.array_equal(merged.n_shading, np.where(length > 1e-12, n_s / np.maximum(length, 1e-300),
+                                                         points.n_geometric[rows[first]]))
+        assert np.array_equal(merged.triangle, points.triangle[rows[first]])
+        assert np.array_equal(merged.weight, np.bincount(want_inverse, weights=points.weight[rows]).astype(np.float32))
+        assert merged.weight[0] == 0 and np.isfinite(merged.p).all()
