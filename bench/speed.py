@@ -9,7 +9,8 @@ The scenes are the competitors bench's (`bench/competitors.py`: one object each,
 unwrapped by the add-on, the unwrap cached in ``bench/results/speed/``), baked at the preset's defaults with
 the machine's default worker threads. Only the core bake is timed (`core.pipeline.bake`): not Blender's
 start-up, the scene's import or the unwrap. Per bake: wall seconds, CPU seconds of all threads, of which
-in the kernel, and the process's peak resident memory during the bake (Blender and the loaded scene
+in the kernel, each stage's seconds and Embree's share of its thread time (the manifest's
+``embree_share_<stage>``), and the process's peak resident memory during the bake (Blender and the loaded scene
 included; on Linux the peak is reset once the scene is loaded, so the import's and the unwrap's do not count).
 
 A fresh process per bake, because a bake's numbers depend on what the process did before (freed memory
@@ -56,7 +57,9 @@ def bake_once(scene_key: str, quality: str, work: Path) -> dict:
     return dict(scene=scene_key, quality=quality, wall=wall, cpu=cpu, kernel=after.ru_stime - before.ru_stime,
                 peak_gb=_peak_bytes() / 2 ** 30, texels=counters.get("texels_covered"),
                 rays=counters.get("rays_cast"), records=counters.get("records_total"),
-                stages={k: round(v, 2) for k, v in result.stats.get("seconds", {}).items()})
+                stages={k: round(v, 2) for k, v in result.stats.get("seconds", {}).items()},
+                embree_share={k[len("embree_share_"):]: round(v, 3) for k, v in counters.items()
+                              if k.startswith("embree_share_")})
 
 
 def _reset_peak() -> None:
@@ -142,7 +145,8 @@ def main(argv=None) -> None:
                     row = dict(run_one(checkout, scene, quality, args.work), checkout=label)
                     rows.append(row)
                     print(f"{label:8s} {scene:10s} {quality:7s} wall {row['wall']:6.1f} s  CPU {row['cpu']:6.1f} s "
-                          f"(kernel {row['kernel']:5.1f})  peak {row['peak_gb']:.2f} GB  {row['stages']}", flush=True)
+                          f"(kernel {row['kernel']:5.1f})  peak {row['peak_gb']:.2f} GB  {row['stages']}  "
+                          f"Embree {row['embree_share']}", flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(dict(rows=rows, argv=sys.argv[1:]), indent=1))
     print()

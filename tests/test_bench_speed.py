@@ -18,6 +18,7 @@ def test_a_bake_in_its_own_process_reports_what_it_measured(tmp_path, capsys):
     assert 0.05 < row["peak_gb"] < 8  # Blender, the box and its bake: hundreds of MB
     assert row["texels"] > 30_000 and row["records"] > 100 and row["rays"] > row["texels"]
     assert {"photons", "cache", "interpolate"} <= set(row["stages"])
+    assert 0 < row["embree_share"]["cache"] <= 1
     assert "| cornell256 | PREVIEW |" in capsys.readouterr().out
 
 
