@@ -18,7 +18,7 @@ kept by the allocator, pages already faulted in). With ``--baseline`` every bake
 checkout's code and once with this one's, alternating, the same scene from the same unwrap: the fair way to
 time a change on a machine whose speed drifts by 10 % from one hour to the next. The baseline checkout sits
 beside this one, as it reads the scenes from ``../shared/scenes`` too, with this machine's compiled kernels
-copied in (without them it runs numpy's, and says so in its stats).
+copied in (without them it runs numpy's; each row records which kernels ran, ``kernels``).
 """
 from __future__ import annotations
 
@@ -47,7 +47,7 @@ def bake_once(scene_key: str, quality: str, work: Path) -> dict:
 
     pdic_addon.register()
     _, scene = load_scene(SPECS[scene_key], work / scene_key)
-    _reset_peak()
+    peak_reset = _reset_peak()
     before = resource.getrusage(resource.RUSAGE_SELF)
     wall, cpu = time.perf_counter(), time.process_time()
     result = bake(scene, preset(quality))
@@ -59,16 +59,18 @@ def bake_once(scene_key: str, quality: str, work: Path) -> dict:
                 rays=counters.get("rays_cast"), records=counters.get("records_total"),
                 stages={k: round(v, 2) for k, v in result.stats.get("seconds", {}).items()},
                 embree_share={k[len("embree_share_"):]: round(v, 3) for k, v in counters.items()
-                              if k.startswith("embree_share_")})
+                              if k.startswith("embree_share_")},
+                kernels=result.stats.get("kernels"), peak_reset=peak_reset)
 
 
-def _reset_peak() -> None:
-    """Start VmHWM afresh at the current resident size (Linux: ``clear_refs`` 5); elsewhere it stays the
-    process's peak."""
+def _reset_peak() -> bool:
+    """Start VmHWM afresh at the current resident size (Linux: ``clear_refs`` 5). False where that failed:
+    the peak is then the process's, the scene's import and unwrap included (the row says so)."""
     try:
         Path("/proc/self/clear_refs").write_text("5")
+        return True
     except OSError:
-        pass
+        return False
 
 
 def _peak_bytes() -> int:
@@ -78,7 +80,8 @@ def _peak_bytes() -> int:
                 return int(line.split()[1]) * 1024
     except OSError:
         pass
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    maxrss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return maxrss if sys.platform == "darwin" else maxrss * 1024  # bytes on macOS, KB elsewhere
 
 
 def run_one(checkout: Path, scene_key: str, quality: str, work: Path) -> dict:
@@ -89,7 +92,7 @@ def run_one(checkout: Path, scene_key: str, quality: str, work: Path) -> dict:
     lines = [x for x in proc.stdout.splitlines() if x.startswith("SPEED ")]
     if proc.returncode != 0 or not lines:
         raise SystemExit(f"bench.speed: the bake of {scene_key} at {quality} in {checkout} failed "
-                         f"(exit {proc.returncode}):\n{proc.stderr[-3000:]}")
+                         f"(exit {proc.returncode}):\n{(proc.stderr or proc.stdout or '(no output)')[-3000:]}")
     return json.loads(lines[-1][len("SPEED "):])
 
 
@@ -133,10 +136,13 @@ def main(argv=None) -> None:
     if unknown:
         raise SystemExit(f"--scenes: unknown {unknown}; known: {', '.join(SCENES)}")
     qualities = [q.strip().upper() for q in args.qualities.split(",") if q.strip()]
+    if not qualities or set(qualities) - set(QUALITIES):
+        raise SystemExit(f"--qualities: {args.qualities!r}; known: {', '.join(QUALITIES)}")
     if args.baseline is not None and not (args.baseline / "pdic_bootstrap.py").is_file():
         raise SystemExit(f"--baseline {args.baseline}: not a PDIC checkout (no pdic_bootstrap.py there)")
     checkouts = [("this", ROOT)] + ([("baseline", args.baseline.resolve())] if args.baseline else [])
     rows = []
+    args.out.parent.mkdir(parents=True, exist_ok=True)
     for scene in scenes:
         for quality in qualities:
             for run in range(args.runs):
@@ -144,11 +150,11 @@ def main(argv=None) -> None:
                 for label, checkout in (checkouts if run % 2 == 0 else checkouts[::-1]):
                     row = dict(run_one(checkout, scene, quality, args.work), checkout=label)
                     rows.append(row)
+                    # Written after every bake: a later bake that fails keeps the ones measured.
+                    args.out.write_text(json.dumps(dict(rows=rows, argv=sys.argv[1:]), indent=1))
                     print(f"{label:8s} {scene:10s} {quality:7s} wall {row['wall']:6.1f} s  CPU {row['cpu']:6.1f} s "
                           f"(kernel {row['kernel']:5.1f})  peak {row['peak_gb']:.2f} GB  {row['stages']}  "
                           f"Embree {row['embree_share']}", flush=True)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(dict(rows=rows, argv=sys.argv[1:]), indent=1))
     print()
     print(markdown(rows, [label for label, _ in checkouts]))
 

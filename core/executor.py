@@ -220,9 +220,10 @@ def row_chunks(n: int) -> list[slice]:
 
 
 def group_chunks(first: np.ndarray, n: int) -> list[slice]:
-    """Slices of ``range(n)`` of about ROW_CHUNK rows that keep groups whole: rows in groups starting at
-    ``first`` (g,) increasing, first[0] = 0. A group's sums over its rows (np.bincount) are then made in one
-    pass, in its rows' order, as over all rows at once."""
+    """Slices of ``range(n)``, in order, that keep groups whole: rows in groups starting at ``first`` (g,)
+    increasing, first[0] = 0; each cut at the first group start at or after a multiple of ROW_CHUNK (a slice
+    holds one group longer than that whole, and may be shorter). A group's sums over its rows (np.bincount)
+    are then made in one pass, in its rows' order, as over all rows at once."""
     cuts = np.append(first, n)
     ends = cuts[np.searchsorted(cuts, np.arange(ROW_CHUNK, n, ROW_CHUNK))]
     bounds = np.unique(np.concatenate([[0], ends, [n]]))

@@ -106,7 +106,7 @@ def indirect_at_texels(scene, caster, density: PhotonDensity | None, sources: Ga
             merged, sample_to_point = points.per_texel(valid)  # inside samples not averaged in
             filled = fill_holes(scene, caster, density, sources, cache, merged, params, settings, executor, progress,
                                 texel_size, sky, shared)
-            for s in row_chunks(len(valid)):  # each sample its texel's value, in passes (no (n, 3) temporary)
+            for s in row_chunks(len(valid)):  # each sample its texel's value, in passes (no whole-array temporary)
                 E[valid[s]] = np.take(filled.E, sample_to_point[s], axis=0)
             fine = _fine_samples(filled.smallest, sample_to_point, texel_size, settings)
             if len(fine):

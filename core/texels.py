@@ -66,6 +66,8 @@ class TexelPoints:
         by its index: whole-column temporaries would be fresh memory on every bake (Sponza at 2048^2: 11 M
         samples, 1.9 GB of them, 1.7-9.4 s mostly in the kernel); a group's sums are the same to the bit.
         """
+        if rows is not None and np.asarray(rows).dtype.kind not in "iu":
+            raise TypeError(f"per_texel: rows must be integer indices, got {np.asarray(rows).dtype}")
         m = len(self) if rows is None else len(rows)
         if m == 0:
             return self.take(np.zeros(0, np.int64)), np.zeros(0, np.int64)
@@ -104,9 +106,10 @@ class TexelPoints:
 
 def _sorted_groups(key: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
     """(order, first, inverse) of keys (n,) or rows (n, k), n >= 1: ``order`` (n,) the stable sort of the keys
-    (rows lexicographically), None when they are in order already, as rasterised samples come (by target,
-    texel, triangle); ``first`` (g,) where each group of equal keys starts and ``inverse`` (n,) intp each
-    sorted key's group, groups in key order."""
+    (rows lexicographically, always sorted), None when 1-D keys are in order already, as rasterised samples
+    come (by target, texel, triangle); ``first`` (g,) where each group of equal keys starts and ``inverse``
+    (n,) intp each sorted key's group, groups in key order. With ``order``, ``order[first]`` and the inverse
+    scattered back (:func:`_unsorted`) are ``np.unique(key, return_index=True, return_inverse=True)``'s."""
     if key.ndim == 1:
         order = None if not (key[1:] < key[:-1]).any() else np.argsort(key, kind="stable")
     else:
@@ -131,15 +134,6 @@ def _unsorted(order: np.ndarray | None, inverse: np.ndarray) -> np.ndarray:
     out = np.empty_like(inverse)
     out[order] = inverse
     return out
-
-
-def _groups(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(first (g,), inverse (n,)): ``np.unique(key, return_index=True, return_inverse=True)``'s (``axis=0`` for
-    rows), groups in key order; keys already in order are grouped where they change, without a sort."""
-    if len(key) == 0:
-        return np.zeros(0, np.intp), np.zeros(0, np.intp)
-    order, first, inverse = _sorted_groups(key)
-    return (first if order is None else order[first]), _unsorted(order, inverse)
 
 
 def _group_key(target: np.ndarray, texel: np.ndarray, triangle: np.ndarray, rows: np.ndarray | None = None

@@ -19,6 +19,7 @@ def test_a_bake_in_its_own_process_reports_what_it_measured(tmp_path, capsys):
     assert row["texels"] > 30_000 and row["records"] > 100 and row["rays"] > row["texels"]
     assert {"photons", "cache", "interpolate"} <= set(row["stages"])
     assert 0 < row["embree_share"]["cache"] <= 1
+    assert row["peak_reset"] and row["kernels"]  # which compiled kernels ran (or why numpy did)
     assert "| cornell256 | PREVIEW |" in capsys.readouterr().out
 
 
@@ -31,6 +32,7 @@ def test_the_table_puts_each_checkout_in_its_own_columns():
 
 
 @pytest.mark.parametrize("argv, message", [(["--scenes", "sponza3"], "unknown ['sponza3']"),
+                                           (["--qualities", "final,fast"], "--qualities: 'final,fast'"),
                                            (["--baseline", "/nonexistent/pdic"], "not a PDIC checkout")])
 def test_bad_arguments_say_which(argv, message):
     with pytest.raises(SystemExit, match=message.replace("[", r"\[").replace("]", r"\]")):

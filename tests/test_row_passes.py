@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from pdic.core import executor
 from pdic.core.density import PhotonDensity
@@ -17,7 +18,7 @@ from pdic.core.pipeline import bake
 from pdic.core.rays import RayCaster
 from pdic.core.scene import World
 from pdic.core.settings import preset
-from pdic.core.texels import TexelPoints, _groups
+from pdic.core.texels import TexelPoints, _sorted_groups, _unsorted
 from pdic.core.zone_grid import ZoneGrid
 
 from scenes import quad, quad_scene
@@ -93,10 +94,18 @@ def test_a_zone_grid_built_in_passes_lists_what_one_pass_lists(monkeypatch):
         assert np.array_equal(a, b)
 
 
+def _groups(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """np.unique's first indices and inverse from :func:`_sorted_groups`."""
+    order, first, inverse = _sorted_groups(key)
+    assert order is not None or key.ndim == 1  # rows are always sorted
+    return (first if order is None else order[first]), _unsorted(order, inverse)
+
+
 def test_sorted_sample_keys_are_grouped_as_np_unique_groups_them():
     """Keys in order (rasterised samples) are grouped where they change, without a sort: np.unique's first
-    indices and inverse, dtypes included; unsorted and row keys go to np.unique."""
+    indices and inverse, dtypes included; unsorted and row keys by a stable sort, to the same answer."""
     rng = np.random.default_rng(4)
+    assert _sorted_groups(np.sort(rng.integers(0, 9, 40)))[0] is None
     for n in (1, 2, 50, 20000):
         key = np.sort(rng.integers(0, max(n // 4, 1), n))
         first, inverse = _groups(key)
@@ -178,3 +187,5 @@ def test_per_texel_sums_each_group_in_one_pass_as_all_rows_at_once(monkeypatch):
         assert np.array_equal(merged.triangle, points.triangle[rows[first]])
         assert np.array_equal(merged.weight, np.bincount(want_inverse, weights=points.weight[rows]).astype(np.float32))
         assert merged.weight[0] == 0 and np.isfinite(merged.p).all()
+    with pytest.raises(TypeError, match="integer indices"):  # a mask would read as rows 0 and 1
+        points.per_texel(np.ones(m, bool))
