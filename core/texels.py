@@ -149,8 +149,8 @@ def _group_key(target: np.ndarray, texel: np.ndarray, triangle: np.ndarray, rows
     columns = (target, texel, triangle)
     n = len(texel) if rows is None else len(rows)
 
-    def part(column: np.ndarray, s: slice) -> np.ndarray:
-        return np.asarray(column[s] if rows is None else np.take(column, rows[s]), np.int64)
+    def part(column: np.ndarray, s: slice) -> np.ndarray:  # a copy always: the key is built in place
+        return (column[s] if rows is None else np.take(column, rows[s])).astype(np.int64)
 
     whole = slice(None)
     if len(texel) == 0 or min(int(c.min()) for c in columns) < 0:

@@ -189,3 +189,9 @@ def test_per_texel_sums_each_group_in_one_pass_as_all_rows_at_once(monkeypatch):
         assert merged.weight[0] == 0 and np.isfinite(merged.p).all()
     with pytest.raises(TypeError, match="integer indices"):  # a mask would read as rows 0 and 1
         points.per_texel(np.ones(m, bool))
+    # Columns already int64, all rows: the keys are built in place in copies, never in the points' own columns.
+    wide = replace(points, target=points.target.astype(np.int64))
+    before = {f: getattr(wide, f).copy() for f in TexelPoints.__dataclass_fields__}
+    merged, _ = wide.per_texel()
+    assert all(np.array_equal(getattr(wide, f), before[f]) for f in before)
+    assert np.array_equal(merged.p, points.per_texel(np.arange(m))[0].p)
