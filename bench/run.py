@@ -28,7 +28,6 @@ import argparse
 import json
 import os
 import platform
-import resource
 import shutil
 import subprocess
 import sys
@@ -48,6 +47,7 @@ import bpy  # noqa: E402
 
 from pdic import pdic_addon  # noqa: E402
 from pdic.bench import scenes as bench_scenes  # noqa: E402
+from pdic.bench.speed import peak_bytes  # noqa: E402
 from pdic.core import chr99_irradiance  # noqa: E402
 from pdic.core import texels as texel_stage  # noqa: E402
 from pdic.core.bake_cache import BakeCache  # noqa: E402
@@ -581,16 +581,8 @@ def scaling_point(kind: str, value: int, quality: str) -> dict:
 
 
 def peak_rss_mb() -> float:
-    """This process's peak resident memory, MB: VmHWM (ru_maxrss keeps the parent's peak across
-    fork/exec on Linux, so a subprocess of a big bench would report the bench's peak)."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    """This process's peak resident memory, MB (:func:`bench.speed.peak_bytes`)."""
+    return peak_bytes() / 2 ** 20
 
 
 def section_scaling(quick: bool) -> dict:

@@ -55,7 +55,7 @@ def bake_once(scene_key: str, quality: str, work: Path) -> dict:
     after = resource.getrusage(resource.RUSAGE_SELF)
     counters = result.stats.get("counters", {})
     return dict(scene=scene_key, quality=quality, wall=wall, cpu=cpu, kernel=after.ru_stime - before.ru_stime,
-                peak_gb=_peak_bytes() / 2 ** 30, texels=counters.get("texels_covered"),
+                peak_gb=peak_bytes() / 2 ** 30, texels=counters.get("texels_covered"),
                 rays=counters.get("rays_cast"), records=counters.get("records_total"),
                 stages={k: round(v, 2) for k, v in result.stats.get("seconds", {}).items()},
                 embree_share={k[len("embree_share_"):]: round(v, 3) for k, v in counters.items()
@@ -73,7 +73,9 @@ def _reset_peak() -> bool:
         return False
 
 
-def _peak_bytes() -> int:
+def peak_bytes() -> int:
+    """This process's peak resident memory, bytes: VmHWM (ru_maxrss keeps the parent's peak across fork/exec on
+    Linux, so a subprocess of a big bench would report the bench's peak)."""
     try:
         for line in Path("/proc/self/status").read_text().splitlines():
             if line.startswith("VmHWM:"):
