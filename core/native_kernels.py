@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-VERSION = 6
+VERSION = 7
 """The C library's ``pdic_native_version()`` this module calls; a library of another version is not used."""
 NATIVE_DIR = Path(__file__).resolve().parent / "native"
 SUFFIX = {"linux": ".so", "windows": ".dll", "macos": ".dylib"}
@@ -84,6 +84,10 @@ def _declare(lib) -> None:
     lib.pdic_tally_real_rays.argtypes = [_PTR, _I64, _I64] + [_PTR] * 12
     lib.pdic_point_light_rays.restype = _I64
     lib.pdic_point_light_rays.argtypes = [_PTR, _PTR, _PTR, _I64, _PTR, _F64] + [_PTR] * 6
+    lib.pdic_morton_keys.restype = None
+    lib.pdic_morton_keys.argtypes = [_PTR, _I64, _PTR]
+    lib.pdic_morton_order.restype = None
+    lib.pdic_morton_order.argtypes = [_PTR, _I64] + [_PTR] * 4
     lib.pdic_hit_cells.restype = None
     lib.pdic_hit_cells.argtypes = ([_PTR] * 5 + [_I64] + [_PTR] * 3 + [_I64] + [_PTR] * 4 + [_F64, _PTR] + [_F64] * 4
                                    + [_PTR] * 7)
@@ -279,6 +283,25 @@ def hit_cells(lib, caster, grid, triangle, barycentric, q, direction, distance, 
     return n_hit, E, centroid, rho, is_open, near, gap
 
 
+def morton_keys(lib, p: np.ndarray) -> np.ndarray:
+    """:func:`core.zone_grid.morton_keys_numpy` in C: (m,) uint64, the same keys."""
+    p = _f64(p)
+    keys = np.empty(len(p), np.uint64)
+    lib.pdic_morton_keys(_ptr(p), len(p), _ptr(keys))
+    return keys
+
+
+def morton_order(lib, p: np.ndarray) -> np.ndarray:
+    """:func:`core.zone_grid.spatial_order` in C: np.argsort of the Morton keys, kind="stable" (a radix sort of
+    their 30 bits), the same permutation."""
+    p = _f64(p)
+    m = len(p)
+    order = np.empty(m, np.int64)
+    lib.pdic_morton_order(_ptr(p), m, _ptr(np.empty(m, np.uint64)), _ptr(np.empty(m, np.uint64)), _ptr(order),
+                          _ptr(np.empty(m, np.int64)))
+    return order
+
+
 def _self_check(lib) -> str | None:
     """Compare the library with the numpy functions on a small random problem, to the bit.
 
@@ -371,7 +394,25 @@ def _self_check_lights(lib, rng) -> str | None:
     want = point_light_rays_numpy(p, n_s, n_g, c, 1e-3)
     if not all(np.array_equal(x, y) for x, y in zip(want, point_light_rays(lib, p, n_s, n_g, c, 1e-3))):
         return "point light rays differ"
-    return _self_check_hits(lib, rng)
+    return _self_check_hits(lib, rng) or _self_check_morton(lib, rng)
+
+
+def _self_check_morton(lib, rng) -> str | None:
+    from .zone_grid import morton_keys_numpy
+
+    p = rng.normal(size=(500, 3)) * [1.0, 1e-3, 50.0]
+    flat = p.copy()
+    flat[:, 1] = 0.25  # a plane of points: one axis of zero extent
+    nan_ = p.copy()
+    nan_[7, 2] = np.nan
+    inf_ = p.copy()
+    inf_[3, 0] = np.inf
+    for q in (p, flat, nan_, inf_, p[:1], np.zeros((0, 3))):
+        if not np.array_equal(morton_keys(lib, q), morton_keys_numpy(q)):
+            return "Morton keys differ"
+        if not np.array_equal(morton_order(lib, q), np.argsort(morton_keys_numpy(q), kind="stable")):
+            return "Morton order differs"
+    return None
 
 
 def _self_check_hits(lib, rng) -> str | None:

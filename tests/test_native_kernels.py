@@ -20,7 +20,7 @@ from pdic.core.pipeline import bake
 from pdic.core.rays import Hits
 from pdic.core.settings import preset
 from pdic.core.vectors import dots
-from pdic.core.zone_grid import ZoneGrid
+from pdic.core.zone_grid import ZoneGrid, morton_keys_numpy, spatial_order
 
 from scenes import box_on_ground, lamp_box
 
@@ -193,6 +193,29 @@ def test_hit_cells_equal_numpy(albedo, open_cells, corner, gap):
     cell = np.array([cell_of[tuple(c)] for c in centroid.tolist()])
     assert ((cell >= grid.offset[triangle]) & (cell < grid.offset[triangle] + grid.side[triangle] ** 2)).all()
     assert np.array_equal(E, grid.E[back.astype(int), cell].astype(np.float64))
+
+
+@pytest.mark.parametrize("case", ["scattered", "flat", "nan", "inf", "one", "repeated"])
+def test_morton_keys_and_order_equal_numpy(case):
+    rng = np.random.default_rng(21)
+    p = rng.normal(size=(30000, 3)) * [1.0, 1e-4, 300.0]
+    if case == "flat":
+        p[:, 2] = 7.0  # an axis of zero extent
+    elif case == "nan":
+        p[11, 1] = np.nan  # numpy's box turns NaN: every key 0
+    elif case == "inf":
+        p[5, 0] = -np.inf  # the extent infinite: the scale 0
+    elif case == "one":
+        p = p[:1]
+    elif case == "repeated":
+        p = p[rng.integers(0, 40, len(p))]  # few distinct keys: the stable order keeps each run's order
+    keys = morton_keys_numpy(p)
+    assert np.array_equal(native_kernels.morton_keys(LIB, p), keys)
+    order = native_kernels.morton_order(LIB, p)
+    assert np.array_equal(order, np.argsort(keys, kind="stable"))
+    assert np.array_equal(spatial_order(p), order)
+    # a NaN or infinite coordinate makes the box's extent NaN or infinite, and a lone point has none: every key 0
+    assert (case in ("nan", "inf", "one")) == (not keys.any())
 
 
 def test_dots_sum_left_to_right():

@@ -9,6 +9,7 @@
  */
 #include <math.h>
 #include <stdint.h>
+#include <string.h>
 
 #if defined(_WIN32)
 #define PDIC_EXPORT __declspec(dllexport)
@@ -22,7 +23,7 @@
 #define PDIC_FOUR_PI 12.566370614359172
 
 /* Bumped whenever a signature changes: core/native_kernels.py refuses a library of another version. */
-PDIC_EXPORT int64_t pdic_native_version(void) { return 6; }
+PDIC_EXPORT int64_t pdic_native_version(void) { return 7; }
 
 /* core.zone_grid.ZoneGrid.pairs: every (point, record) with |q - p_k|^2 <= zone_k^2, points in order,
  * each point's cell entries in order. Dense cell table: first (n_cells + 1), else the sorted occupied
@@ -419,4 +420,81 @@ PDIC_EXPORT void pdic_hit_cells(const int64_t *triangle, const double *barycentr
             gap_out[k] = (uint8_t)gap;
         }
     }
+}
+
+/* core.zone_grid.morton_keys_numpy: each point's Morton (Z-curve) key over the points' bounding box, MORTON_BITS
+ * (10) bits per axis. NaN propagates into the box as numpy's min and max carry it (every key then 0), and a
+ * coordinate that is NaN or infinite after scaling counts as 0 (np.nan_to_num with posinf and neginf 0). */
+static inline uint64_t spread_bits(uint64_t x) {
+    x &= 0x3FFu;
+    x = (x | (x << 16)) & 0x030000FFu;
+    x = (x | (x << 8)) & 0x0300F00Fu;
+    x = (x | (x << 4)) & 0x030C30C3u;
+    x = (x | (x << 2)) & 0x09249249u;
+    return x;
+}
+
+PDIC_EXPORT void pdic_morton_keys(const double *p, int64_t m, uint64_t *keys) {
+    if (m <= 0) return;
+    double lo[3], hi[3];
+    int nan_[3] = {0, 0, 0};
+    for (int j = 0; j < 3; ++j) lo[j] = hi[j] = p[j];
+    for (int64_t i = 0; i < m; ++i) {
+        for (int j = 0; j < 3; ++j) {
+            double v = p[3 * i + j];
+            if (isnan(v)) nan_[j] = 1;
+            else {
+                if (v < lo[j]) lo[j] = v;
+                if (v > hi[j]) hi[j] = v;
+            }
+        }
+    }
+    double range = 0.0;
+    int range_nan = 0;
+    for (int j = 0; j < 3; ++j) {
+        if (nan_[j]) { lo[j] = NAN; range_nan = 1; continue; }
+        double d = hi[j] - lo[j];
+        if (isnan(d)) range_nan = 1;  /* inf - inf */
+        else if (j == 0 || d > range) range = d;
+    }
+    /* Python's max(range, 1e-300) returns a NaN range as it is */
+    double denom = range_nan ? NAN : (1e-300 > range ? 1e-300 : range);
+    double scale = 1023.0 / denom;
+    for (int64_t i = 0; i < m; ++i) {
+        uint64_t c[3];
+        for (int j = 0; j < 3; ++j) {
+            double v = (p[3 * i + j] - lo[j]) * scale;
+            if (isnan(v) || isinf(v)) v = 0.0;
+            v = v < 0.0 ? 0.0 : (v > 1023.0 ? 1023.0 : v);
+            c[j] = (uint64_t)v;
+        }
+        keys[i] = spread_bits(c[0]) | (spread_bits(c[1]) << 1) | (spread_bits(c[2]) << 2);
+    }
+}
+
+/* core.zone_grid.spatial_order: np.argsort of pdic_morton_keys, kind="stable", as a stable least-significant-digit
+ * radix sort of the keys' 30 bits in three passes of 10 (a stable order of given keys is unique). keys, keys_tmp,
+ * order_tmp : scratch of m entries. */
+PDIC_EXPORT void pdic_morton_order(const double *p, int64_t m, uint64_t *keys, uint64_t *keys_tmp, int64_t *order,
+                                   int64_t *order_tmp) {
+    if (m <= 0) return;
+    pdic_morton_keys(p, m, keys);
+    for (int64_t i = 0; i < m; ++i) order[i] = i;
+    uint64_t *ka = keys, *kb = keys_tmp;
+    int64_t *oa = order, *ob = order_tmp;
+    for (int pass = 0; pass < 3; ++pass) {
+        int shift = 10 * pass;
+        int64_t start[1025];
+        memset(start, 0, sizeof(start));
+        for (int64_t i = 0; i < m; ++i) ++start[((ka[i] >> shift) & 1023u) + 1];
+        for (int b = 0; b < 1024; ++b) start[b + 1] += start[b];
+        for (int64_t i = 0; i < m; ++i) {
+            int64_t at = start[(ka[i] >> shift) & 1023u]++;
+            kb[at] = ka[i];
+            ob[at] = oa[i];
+        }
+        uint64_t *k = ka; ka = kb; kb = k;
+        int64_t *o = oa; oa = ob; ob = o;
+    }
+    if (oa != order) memcpy(order, oa, (size_t)m * sizeof(int64_t));
 }
