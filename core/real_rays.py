@@ -297,7 +297,7 @@ def gap_irradiance(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng
     rows, x, n_x = np.arange(len(q)), q, n_hit
     beta = np.ones((len(q), 3))  # the walk's throughput: albedos over survival probabilities
     vertices = []  # per bounce: (walk rows, y, n_y, beta at y, leaves the gap at y, y's triangle,
-    #                  barycentric and side met, y's distance from the vertex before)
+    #                  barycentric, the ray that met y, y's distance from the vertex before)
     for bounce in range(GAP_WALK_BOUNCES):
         d = to_world(cosine_hemisphere(rng.random((len(x), 2)))[0], n_x)
         origin = caster.offset_origins(x, n_x, d)
@@ -305,13 +305,13 @@ def gap_irradiance(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng
         rays += len(x)
         hit = np.flatnonzero(hits.hit)
         tri, bary = hits.triangle[hit], hits.barycentric[hit]
-        back_y, n_y = side_met(caster.face_normals, tri, d[hit])
+        _, n_y = side_met(caster.face_normals, tri, d[hit])
         y = origin[hit] + d[hit] * hits.t[hit, None]
         rho = albedo_at(scene, tri, bary).astype(np.float64)
         beta_y = beta[hit] * rho  # pi x the radiance leaving y, per cosine pdf
         inside = (hits.t[hit] < sources.gap_reach) & (dots(n_y, n_x[hit]) < -GAP_COS)
         inside &= bounce < GAP_WALK_BOUNCES - 1
-        vertices.append((rows[hit], y, n_y, beta_y, ~inside, tri, bary, back_y, hits.t[hit]))
+        vertices.append((rows[hit], y, n_y, beta_y, ~inside, tri, bary, d[hit], hits.t[hit]))
         # Still in the gap: bounce on, or stop by Russian roulette on y's albedo (records read in a
         # gap spread the light of its mouth over their zones, so the walk does not end on them).
         walk = np.flatnonzero(inside)
@@ -321,9 +321,9 @@ def gap_irradiance(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng
         rows, x, n_x, beta = rows[hit[walk]], y[walk], n_y[walk], beta_y[walk] / survive[:, None]
         if len(rows) == 0:
             break
-    rows, y, n_y, beta_y, leaves, tri, bary, back, t = (np.concatenate(v) for v in zip(*vertices))
+    rows, y, n_y, beta_y, leaves, tri, bary, d, t = (np.concatenate(v) for v in zip(*vertices))
     on_grid, E_grid, grid_rays = _exits_on_grid(caster, sources, y, n_y, leaves & (t >= sources.gap_reach), tri,
-                                                bary, back, t)
+                                                bary, d, t)
     rays += grid_rays
     E = np.zeros((len(q), 3))
     np.add.at(E, rows[on_grid], beta_y[on_grid] * E_grid)
@@ -345,17 +345,18 @@ def gap_irradiance(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng
 
 
 def _exits_on_grid(caster, sources, y: np.ndarray, n_y: np.ndarray, far: np.ndarray, triangle: np.ndarray,
-                   barycentric: np.ndarray, back: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+                   barycentric: np.ndarray, direction: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     """(indices of the walk's vertices read from the hit grid, their cells' E_direct + E_indirect (g, 3),
     rays spent): the vertices ``far`` (v,) marks, where a walk left its gap a R_min or more from the
     vertex before, that see their grid cell's centroid and are not near it (HIT_GRID_NEAR x ``t`` (v,),
     their distance from that vertex), as :func:`radiance_at_hits` reads an ordinary gathering hit.
     Out of the gap such a vertex is one: a grid read and one ray instead of its shadow rays and the
     records' lookup (Sponza 16/m: corner-gathering's +7-17 % CPU became +-1 %). Walks run only with
-    the hit grid (:func:`radiance_at_hits`)."""
+    the hit grid (:func:`radiance_at_hits`). ``direction`` (v, 3): the rays that met the vertices."""
     candidate = np.flatnonzero(far)
-    E, centroid, _, is_open = sources.hit_grid.lookup(triangle[candidate], barycentric[candidate], back[candidate])
-    small = ~_near_cell(y[candidate], centroid, t[candidate])
+    _, E, centroid, _, is_open, near, _ = hit_cells(caster, sources, triangle[candidate], barycentric[candidate],
+                                                    y[candidate], direction[candidate], t[candidate], None)
+    small = ~near
     candidate, E, centroid, is_open = candidate[small], E[small], centroid[small], is_open[small]
     ask = np.flatnonzero(~is_open)  # deviation: open-cells
     seen = is_open.copy()

@@ -218,6 +218,10 @@ class BakeTarget:
 
 
 # --------------------------------------------------------------------------- scene
+_EMITTERS = "_emitters"
+"""Where a :class:`Scene` keeps its :meth:`~Scene.emitters` once made (not a field: no part of its equality)."""
+
+
 @dataclass(frozen=True)
 class Scene:
     """Everything a bake needs, in scene-local coordinates."""
@@ -261,14 +265,25 @@ class Scene:
 
     def emitters(self) -> tuple:
         """Every emitter behind the light interface (core/lights.py), in a fixed order: the lights,
-        then the emissive triangles (if any), then the world (unless black)."""
+        then the emissive triangles (if any), then the world (unless black).
+
+        Made once per scene (a scene is immutable; :func:`dataclasses.replace` makes a new one): every
+        batch of shadow rays asks, and finding the emissive triangles reads every triangle's material."""
+        cached = self.__dict__.get(_EMITTERS)
+        if cached is not None:
+            return cached
         out = list(self.lights)
         triangles = self.emissive_triangles
         if len(triangles):
             out.append(EmissiveMesh(self.geometry, self.materials, triangles))
         if not self.world.is_black:
             out.append(self.world)
-        return tuple(out)
+        object.__setattr__(self, _EMITTERS, tuple(out))  # two threads at once both store the same emitters
+        return self.__dict__[_EMITTERS]
+
+    def __getstate__(self) -> dict:
+        """A pickled scene (a Dask worker's, the bench's) leaves its emitters behind: they are made again."""
+        return {k: v for k, v in self.__dict__.items() if k != _EMITTERS}
 
     def has_light(self) -> bool:
         """True if anything in the scene emits: a light with power, an emissive triangle or the world."""
