@@ -165,7 +165,8 @@ def morton_keys_numpy(p: np.ndarray) -> np.ndarray:
         return np.zeros(0, np.uint64)
     lo, hi = p.min(axis=0), p.max(axis=0)
     scale = (2 ** MORTON_BITS - 1) / max(float((hi - lo).max()), 1e-300)
-    c = np.nan_to_num((p - lo) * scale, nan=0.0, posinf=0.0, neginf=0.0)
+    with np.errstate(invalid="ignore"):  # a NaN or infinite point: its coordinates count as 0
+        c = np.nan_to_num((p - lo) * scale, nan=0.0, posinf=0.0, neginf=0.0)
     c = np.clip(c, 0, 2 ** MORTON_BITS - 1).astype(np.uint64)
     return _spread_bits(c[:, 0]) | (_spread_bits(c[:, 1]) << np.uint64(1)) | (_spread_bits(c[:, 2]) << np.uint64(2))
 
