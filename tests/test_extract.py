@@ -452,8 +452,10 @@ print(json.dumps([with_portal.tolist(), without.tolist()]))
 
 def test_a_light_portal_adds_nothing_in_cycles():
     # What is_portal relies on: Cycles' Diffuse Direct bake with a 500 W portal over a floor equals the bake
-    # without it. In a process of its own: Cycles 5.2.3 crashed (SIGSEGV) baking the portal's scene after an
-    # earlier test's Cycles bake in the same process; alone it does not.
+    # without it. In a process of its own: Cycles 5.2.3 crashes (SIGSEGV inside its bake) on the portal's
+    # scene after an earlier test's Cycles bake in the same process, and alone too, now and then: 13 of 20
+    # runs two at a time on a 2-core machine, none of 10 one at a time. Its crash is not what this asks, so a
+    # run that dies by a signal is run again, three times at most.
     import json
     import subprocess
     import sys
@@ -461,8 +463,11 @@ def test_a_light_portal_adds_nothing_in_cycles():
 
     tests = Path(__file__).resolve().parent
     code = PORTAL_IN_CYCLES.format(root=str(tests.parent), tests=str(tests))
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr[-2000:]
+    for _ in range(3):
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+        if done.returncode >= 0:
+            break
+    assert done.returncode == 0, f"exit {done.returncode}: {done.stderr[-2000:]}"
     with_portal, without = (np.array(x) for x in json.loads(done.stdout.strip().splitlines()[-1]))
     assert without.mean() > 0.05
     np.testing.assert_allclose(with_portal, without, rtol=1e-5)
