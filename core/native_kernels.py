@@ -1,5 +1,5 @@
-"""Compiled kernels of Equation 3, the albedo at hits, pass 3's gathering rays and hits and point lights'
-shadow rays, with the numpy code they replace as the fallback.
+"""Compiled kernels of Equation 3, the albedo at hits, pass 3's gathering rays and hits, point lights'
+shadow rays and the lookups' Morton order, with the numpy code they replace as the fallback.
 
 Equation 3 is looked up at every texel sample, at every gathering ray's hit and at every hit-grid cell,
 and its numpy form spends most of its time making arrays per (point, record) pair; the albedo is read at

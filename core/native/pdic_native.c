@@ -1,5 +1,5 @@
 /* Compiled kernels of Equation 3 (paper Equations 1 to 3), of the albedo at hits, of pass 3's gathering
- * rays, their hits and of point lights' shadow rays, for core/native_kernels.py.
+ * rays, their hits, of point lights' shadow rays and of the lookups' Morton order, for core/native_kernels.py.
  *
  * Each function is the loop form of a numpy function in core/ (named in its comment) and does
  * the same floating-point operations in the same order, so its results are identical to the bit:
