@@ -239,7 +239,9 @@ def shade_direct(scene: Scene, caster: RayCaster, p: np.ndarray, n_shading: np.n
     def run(index, s):
         rng = np.random.default_rng([*prefix, index])
         edge_rng = np.random.default_rng([*prefix, index, STREAM_DIRECT_EDGE]) if whole else None
-        return direct_irradiance(scene, serial, p[s], n_shading[s], n_geometric[s], samples, rng, edge_rng)
+        n_s = n_shading[s]
+        n_g = n_s if n_geometric is n_shading else n_geometric[s]  # one set of normals stays one
+        return direct_irradiance(scene, serial, p[s], n_s, n_g, samples, rng, edge_rng)
 
     # A chunk's arrays hold points x samples rays: past 16 samples the chunks shrink to keep them the size
     # they are at 16 (256 samples at full chunks would need ~3 GB on two workers).

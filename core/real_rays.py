@@ -321,9 +321,9 @@ def gap_irradiance(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng
         rows, x, n_x, beta = rows[hit[walk]], y[walk], n_y[walk], beta_y[walk] / survive[:, None]
         if len(rows) == 0:
             break
-    rows, y, n_y, beta_y, leaves, tri, bary, d, t = (np.concatenate(v) for v in zip(*vertices))
+    rows, y, n_y, beta_y, leaves, tri, bary, direction, t = (np.concatenate(v) for v in zip(*vertices))
     on_grid, E_grid, grid_rays = _exits_on_grid(caster, sources, y, n_y, leaves & (t >= sources.gap_reach), tri,
-                                                bary, d, t)
+                                                bary, direction, t)
     rays += grid_rays
     E = np.zeros((len(q), 3))
     np.add.at(E, rows[on_grid], beta_y[on_grid] * E_grid)

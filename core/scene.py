@@ -278,8 +278,8 @@ class Scene:
             out.append(EmissiveMesh(self.geometry, self.materials, triangles))
         if not self.world.is_black:
             out.append(self.world)
-        object.__setattr__(self, _EMITTERS, tuple(out))  # two threads at once both store the same emitters
-        return self.__dict__[_EMITTERS]
+        cached = self.__dict__.setdefault(_EMITTERS, tuple(out))  # two threads at once: both get the first
+        return cached
 
     def __getstate__(self) -> dict:
         """A pickled scene (a Dask worker's, the bench's) leaves its emitters behind: they are made again."""

@@ -153,7 +153,7 @@ def spatial_order(p: np.ndarray) -> np.ndarray:
     if len(p) == 0:
         return np.zeros(0, np.int64)
     lib = native_kernels.library()
-    if lib is not None:  # compiled: the keys and a radix sort of them, one tenth of numpy's time
+    if lib is not None and MORTON_BITS == native_kernels.MORTON_BITS:  # compiled: the keys and a radix sort
         return native_kernels.morton_order(lib, p)
     return np.argsort(morton_keys_numpy(p), kind="stable")
 
@@ -161,11 +161,12 @@ def spatial_order(p: np.ndarray) -> np.ndarray:
 def morton_keys_numpy(p: np.ndarray) -> np.ndarray:
     """(m,) uint64 Morton keys of points p (m, 3) over their bounding box, MORTON_BITS per axis (the compiled
     kernel's reference, :func:`core.native_kernels.morton_keys`: one pass for the box, one for the keys)."""
+    p = np.asarray(p, np.float64)
     if len(p) == 0:
         return np.zeros(0, np.uint64)
-    lo, hi = p.min(axis=0), p.max(axis=0)
-    scale = (2 ** MORTON_BITS - 1) / max(float((hi - lo).max()), 1e-300)
-    with np.errstate(invalid="ignore"):  # a NaN or infinite point: its coordinates count as 0
+    with np.errstate(invalid="ignore"):  # a NaN or infinite point: the box's extent too, every key 0
+        lo, hi = p.min(axis=0), p.max(axis=0)
+        scale = (2 ** MORTON_BITS - 1) / max(float((hi - lo).max()), 1e-300)
         c = np.nan_to_num((p - lo) * scale, nan=0.0, posinf=0.0, neginf=0.0)
     c = np.clip(c, 0, 2 ** MORTON_BITS - 1).astype(np.uint64)
     return _spread_bits(c[:, 0]) | (_spread_bits(c[:, 1]) << np.uint64(1)) | (_spread_bits(c[:, 2]) << np.uint64(2))

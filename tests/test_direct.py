@@ -406,3 +406,23 @@ def test_point_lights_of_radius_0_cast_the_rays_their_samples_would(monkeypatch)
     want = point_light_rays_numpy(p, n_s, n_g, np.zeros(3), 1e-4)
     got = native_kernels.point_light_rays(native_kernels.library(), p, n_s, n_g, np.zeros(3), 1e-4)
     assert all(np.array_equal(x, y) for x, y in zip(want, got)) and len(want[0]) > 1000
+
+
+def test_a_scene_makes_its_emitters_once_and_a_changed_or_pickled_copy_its_own():
+    import pickle
+    from dataclasses import replace
+
+    from scenes import quad, quad_scene
+
+    lamp = sc.PointLight("Lamp", np.array([0.0, 0.0, 1.0]), np.array([100.0, 100.0, 100.0]))
+    emission = np.array([[0.0, 0.0, 0.0], [2.0, 2.0, 2.0]])
+    floor, glow = quad([0, 0, 0], [1, 0, 0], [0, 1, 0]), quad([0, 0, 2], [1, 0, 0], [0, 1, 0])
+    scene = quad_scene([floor, glow], {}, [lamp], emission=emission, materials=np.array([0, 0, 1, 1], np.int32))
+    emitters = scene.emitters()
+    assert scene.emitters() is emitters  # every batch of shadow rays asks: made once
+    assert [type(e).__name__ for e in emitters] == ["PointLight", "EmissiveMesh"]
+    unlit = replace(scene, lights=())  # a new scene: its own emitters, not the first one's
+    assert [type(e).__name__ for e in unlit.emitters()] == ["EmissiveMesh"]
+    copy = pickle.loads(pickle.dumps(scene))  # a Dask worker's copy makes its own
+    assert "_emitters" not in copy.__dict__ and [e.name for e in copy.emitters()][0] == "Lamp"
+    assert len(copy.emitters()) == 2

@@ -195,7 +195,8 @@ def test_hit_cells_equal_numpy(albedo, open_cells, corner, gap):
     assert np.array_equal(E, grid.E[back.astype(int), cell].astype(np.float64))
 
 
-@pytest.mark.parametrize("case", ["scattered", "flat", "nan", "inf", "one", "repeated"])
+@pytest.mark.filterwarnings("error")  # numpy's keys of NaN or infinite points warn no one
+@pytest.mark.parametrize("case", ["scattered", "flat", "nan", "inf", "inf_column", "one", "repeated"])
 def test_morton_keys_and_order_equal_numpy(case):
     rng = np.random.default_rng(21)
     p = rng.normal(size=(30000, 3)) * [1.0, 1e-4, 300.0]
@@ -205,6 +206,8 @@ def test_morton_keys_and_order_equal_numpy(case):
         p[11, 1] = np.nan  # numpy's box turns NaN: every key 0
     elif case == "inf":
         p[5, 0] = -np.inf  # the extent infinite: the scale 0
+    elif case == "inf_column":
+        p[:, 0] = np.inf  # inf - inf: the extent NaN
     elif case == "one":
         p = p[:1]
     elif case == "repeated":
@@ -215,7 +218,9 @@ def test_morton_keys_and_order_equal_numpy(case):
     assert np.array_equal(order, np.argsort(keys, kind="stable"))
     assert np.array_equal(spatial_order(p), order)
     # a NaN or infinite coordinate makes the box's extent NaN or infinite, and a lone point has none: every key 0
-    assert (case in ("nan", "inf", "one")) == (not keys.any())
+    assert (case in ("nan", "inf", "inf_column", "one")) == (not keys.any())
+    with pytest.raises(ValueError, match=r"\(m, 3\)"):  # the C reads three coordinates a point
+        native_kernels.morton_order(LIB, p[:, :2])
 
 
 def test_dots_sum_left_to_right():
