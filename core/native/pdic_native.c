@@ -455,7 +455,7 @@ PDIC_EXPORT void pdic_morton_keys(const double *p, int64_t m, uint64_t *keys) {
         if (nan_[j]) { lo[j] = NAN; range_nan = 1; continue; }
         double d = hi[j] - lo[j];
         if (isnan(d)) range_nan = 1;  /* inf - inf */
-        else if (j == 0 || d > range) range = d;
+        else if (d > range) range = d;  /* d >= 0: hi >= lo */
     }
     /* Python's max(range, 1e-300) returns a NaN range as it is */
     double denom = range_nan ? NAN : (1e-300 > range ? 1e-300 : range);
