@@ -44,12 +44,16 @@ class NearestPhotons:
         both = rows[0]
         for r in rows[1:]:
             both = np.intersect1d(both, r, assume_unique=True)
-        if len(both) and self.k > 1:
-            near = self._answers(both, self.k)
+        self.expect_k(both)
+
+    def expect_k(self, rows: np.ndarray):
+        """Points ``rows`` (r,) distinct get their k nearest now, which answers their nearest too."""
+        if len(rows) and self.k > 1:
+            near = self._answers(rows, self.k)
             table = self._tables.get(1)
             if table is None:
                 table = self._tables[1] = np.full((len(self.q), 1), -1, np.int64)
-            table[both] = near[:, :1]
+            table[rows] = near[:, :1]
 
     def _answers(self, rows: np.ndarray, k: int) -> np.ndarray:
         """(r, k) the k nearest photons of points ``rows``, querying the tree for those not asked yet."""
@@ -119,6 +123,10 @@ def nearest_photon_seen(caster, density: PhotonDensity, q: np.ndarray, n: np.nda
         return out, 0
     if neighbours is None:
         neighbours, rows = NearestPhotons(density, q), np.arange(len(q))
+    # Most go on to the k nearest (their nearest on the wrong side, or hidden: Sponza 16/m, 2.6 M of the 3.2 M
+    # points asked), so all ask for them at once; the first answers the nearest (1.38 us a point against a
+    # nearest query's 0.76 us and then, for most, the k nearest).
+    neighbours.expect_k(rows)
     pick = _nearest_on_side(density, neighbours, rows, n)
     found = np.flatnonzero(pick >= 0)
     seen = _sees(caster, density, q[found], n[found], pick[found])
@@ -169,8 +177,7 @@ def _nearest_on_side(density: PhotonDensity, neighbours: NearestPhotons, rows: n
     """(h,) int64 the nearest of the k nearest photons of points ``rows`` whose normal agrees with n, -1
     if none does.
 
-    The nearest photon is on the right side for ~98 % of Sponza's hits: a 1-nearest query
-    (40 % cheaper than k = 8) settles those, and only the rest ask for k.
+    The nearest photon is on the right side for ~98 % of Sponza's hits; the rest look further among the k.
     """
     pick = neighbours.nearest(rows).copy()
     n_pick = np.take(density.n, pick, axis=0).astype(np.float64)

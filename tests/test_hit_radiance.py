@@ -173,7 +173,7 @@ def test_a_record_just_in_front_of_a_wall_reads_the_wall_behind_it_not_a_cell_in
 
 def test_one_k_nearest_query_answers_the_nearest_of_points_asked_on_both_sides():
     """The hit grid asks both sides of a centroid; where both fall to the fallback, one k-nearest query
-    answers its nearest too, the same photons a fresh query finds."""
+    answers its nearest too, the same photons a fresh query finds; so does one asked for one side's points."""
     from scipy.spatial import cKDTree
 
     from pdic.core.density import PhotonDensity
@@ -198,6 +198,11 @@ def test_one_k_nearest_query_answers_the_nearest_of_points_asked_on_both_sides()
     _, k_nearest = cKDTree(density.p).query(q, k=neighbours.k)
     assert np.array_equal(neighbours.nearest(np.arange(400)), nearest)
     assert np.array_equal(neighbours.k_nearest(np.arange(100, 300)), k_nearest[100:300])
+    # The fallback asks one side's points for their k nearest up front: the first is their nearest.
+    one_side = NearestPhotons(density, q)
+    one_side.expect_k(np.arange(50, 250))
+    assert np.array_equal(one_side._tables[1][50:250, 0], nearest[50:250])
+    assert (one_side._tables[1][:50] == -1).all() and (one_side._tables[1][250:] == -1).all()
 
 
 def _hit_grid(rng, T: int) -> HitGrid:
