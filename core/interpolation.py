@@ -115,11 +115,11 @@ class CacheLookup:
         # if the record sees it (a floor running on under a wall, not the floor beside a column).
         walled = np.flatnonzero(near_wall)
         if len(walled):
-            p_r, n_r, p_k, n_k, delta = pair_vectors(walled)
-            past_reach, past_far = beyond_wall_and_reach(c.wall[rec[walled]], delta, n_k, own_zone[rec[walled]])
+            past_reach, past_far = pair_walls(lib, rows[walled], rec[walled], p, c.p, c.n, c.wall, own_zone)
             inside, band = ~past_reach, past_reach & ~past_far
             if self.caster is not None and band.any():
-                inside[band] = self.caster.sides_visible(p_r[band], n_r[band], p_k[band], n_k[band])
+                p_r, n_r, p_k, n_k, _ = pair_vectors(walled[band])
+                inside[band] = self.caster.sides_visible(p_r, n_r, p_k, n_k)
             ok[walled] = inside
         if self.caster is not None:  # a surface between point and record hides it (a closed box's inside)
             kept = np.flatnonzero(ok)
@@ -157,6 +157,17 @@ class CacheLookup:
                                                                rows, rec, w)
         E = np.divide(num, den[:, None], out=np.zeros_like(num), where=den[:, None] > 0)
         return E, den, np.full(m, np.inf) if smallest is None else smallest
+
+
+def pair_walls(lib, rows: np.ndarray, rec: np.ndarray, p: np.ndarray, p_k: np.ndarray, n_k: np.ndarray,
+               wall: np.ndarray, reach: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`~core.record_walls.beyond_wall_and_reach` for the pairs (rows, rec) (w,) of points p (m, 3) and
+    records p_k, n_k (K, 3) with walls ``wall`` (K, WALL_RAYS) and ``reach`` (K,), compiled when ``lib`` is
+    the library (:func:`core.native_kernels.pair_walls`)."""
+    if lib is not None:
+        return native_kernels.pair_walls(lib, rows, rec, p, p_k, n_k, wall, reach)
+    return beyond_wall_and_reach(wall[rec], np.take(p, rows, axis=0) - np.take(p_k, rec, axis=0),
+                                 np.take(n_k, rec, axis=0), reach[rec])
 
 
 def ward_pairs(p, n, p_k, n_k, R, R_add: float, a: float, rows, rec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

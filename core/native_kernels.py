@@ -1,13 +1,16 @@
-"""Compiled kernels of Equation 3, the albedo at hits, pass 3's gathering rays and hits, point lights'
-shadow rays and the lookups' Morton order, with the numpy code they replace as the fallback.
+"""Compiled kernels of Equation 3 (with its records' wall sectors), the albedo at hits, pass 3's gathering
+rays and hits, point lights' shadow rays and the lookups' Morton order, with the numpy code they replace as
+the fallback.
 
 Equation 3 is looked up at every texel sample, at every gathering ray's hit and at every hit-grid cell,
 and its numpy form spends most of its time making arrays per (point, record) pair; the albedo is read at
 every photon and gathering hit; pass 3 casts ~100 M gathering rays, each set up, tallied and its hit
-classified, and shadow rays to point lights leave every gap walk's vertex. The loops in ``core/native/pdic_native.c`` do the same floating-point
-operations in the same order as the numpy functions they stand for (named in their docstrings below),
-so a bake gives the same light maps to the bit either way (tests/test_native_kernels.py;
-``tools/golden.py``).
+classified, and shadow rays to point lights leave every gap walk's vertex. The loops in
+``core/native/pdic_native.c`` do the same floating-point operations in the same order as the numpy
+functions they stand for (named in their docstrings below), so a bake gives the same light maps to the bit
+either way (tests/test_native_kernels.py; ``tools/golden.py``). The wall sectors' test is the one
+exception: it answers yes or no from an angle whose last bit numpy's SIMD arctan2 may round otherwise
+(:func:`pair_walls`), which only a point within a rounding of a sector's edge could tell.
 
 The library is our own C, built per platform by ``tools/build_native.py`` (the host's C compiler for a
 checkout, zig for the extension's three platforms). It is optional: when the platform's library is
@@ -26,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-VERSION = 7
+VERSION = 8
 """The C library's ``pdic_native_version()`` this module calls; a library of another version is not used."""
 NATIVE_DIR = Path(__file__).resolve().parent / "native"
 SUFFIX = {"linux": ".so", "windows": ".dll", "macos": ".dylib"}
@@ -88,6 +91,8 @@ def _declare(lib) -> None:
     lib.pdic_morton_keys.argtypes = [_PTR, _I64, _PTR]
     lib.pdic_morton_order.restype = None
     lib.pdic_morton_order.argtypes = [_PTR, _I64] + [_PTR] * 4
+    lib.pdic_pair_walls.restype = None
+    lib.pdic_pair_walls.argtypes = [_PTR, _PTR, _I64] + [_PTR] * 4 + [_I64] + [_PTR] * 3 + [_F64] * 4 + [_PTR] * 2
     lib.pdic_hit_cells.restype = None
     lib.pdic_hit_cells.argtypes = ([_PTR] * 5 + [_I64] + [_PTR] * 3 + [_I64] + [_PTR] * 4 + [_F64, _PTR] + [_F64] * 4
                                    + [_PTR] * 7)
@@ -283,6 +288,36 @@ def hit_cells(lib, caster, grid, triangle, barycentric, q, direction, distance, 
     return n_hit, E, centroid, rho, is_open, near, gap
 
 
+def pair_walls(lib, rows, records, p, p_k, n_k, wall, reach) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`core.record_walls.beyond_wall_and_reach` in C for the pairs (rows, records) (w,) of points p (m, 3)
+    and records p_k, n_k (K, 3) with walls ``wall`` (K, S) float32 and ``reach`` (K,): the same (past the
+    polygon through ``reach``, past the far polygon), each (w,) bool, without gathering the pairs' vectors."""
+    from .constants import FAR_WALL, SECTOR_OFFSET, TINY_WALL, WALL_MARGIN, WALL_RAYS  # here: see hit_cells
+    from .record_walls import sector_directions
+
+    rows, records = _i64(rows), _i64(records)
+    p, p_k, n_k, reach = _f64(p), _f64(p_k), _f64(n_k), _f64(reach)
+    wall = np.ascontiguousarray(wall, np.float32)
+    for a, name in ((p, "p"), (p_k, "p_k"), (n_k, "n_k")):
+        if a.ndim != 2 or a.shape[1] != 3:
+            raise ValueError(f"{name} must be (n, 3), got {a.shape}")
+    if wall.shape != (len(p_k), WALL_RAYS) or len(reach) != len(p_k) or len(n_k) != len(p_k):
+        raise ValueError("wall (K, WALL_RAYS), reach (K,) and n_k (K, 3) must match p_k's K records")
+    if len(rows) != len(records):
+        raise ValueError("rows and records must pair up")
+    if len(rows) and not (0 <= rows.min() and rows.max() < len(p) and 0 <= records.min()
+                          and records.max() < len(p_k)):
+        raise ValueError("a pair indexes past the points or the records")
+    w = len(rows)
+    cos_a, sin_a = (np.ascontiguousarray(v, np.float64) for v in sector_directions())
+    past = np.zeros((2, w), np.uint8)
+    if w:
+        lib.pdic_pair_walls(_ptr(rows), _ptr(records), w, _ptr(p), _ptr(p_k), _ptr(n_k), _ptr(wall), WALL_RAYS, _ptr(reach),
+                            _ptr(cos_a), _ptr(sin_a), SECTOR_OFFSET, FAR_WALL, 1.0 - WALL_MARGIN, TINY_WALL,
+                            _ptr(past[0]), _ptr(past[1]))
+    return past[0].view(bool), past[1].view(bool)
+
+
 MORTON_BITS = 10
 """Bits per axis of the compiled Morton keys (three radix passes of 10 bits): core.zone_grid uses them only
 while its own MORTON_BITS is the same."""
@@ -439,7 +474,33 @@ def _self_check_hits(lib, rng) -> str | None:
         got = hit_cells(lib, caster, sources.hit_grid, *hits[:-1], real_rays.gap_tests(sources, n_record))
         if not all((x is None and y is None) or np.array_equal(x, y) for x, y in zip(want, got)):
             return "hit cells differ"
+    return _self_check_walls(lib, rng)
+
+
+def _self_check_walls(lib, rng) -> str | None:
+    from .record_walls import beyond_wall_and_reach
+
+    rows, records, p, p_k, n_k, wall, reach = _wall_pairs(rng, 40, 30, 600)
+    want = beyond_wall_and_reach(wall[records], p[rows] - p_k[records], n_k[records], reach[records])
+    got = pair_walls(lib, rows, records, p, p_k, n_k, wall, reach)
+    if not all(np.array_equal(a, b) for a, b in zip(want, got)):
+        return "record walls differ"
     return None
+
+
+def _wall_pairs(rng, m: int, K: int, w: int):
+    """(rows, records, p, p_k, n_k, wall, reach): w random pairs of m points and K records whose sector walls
+    are near, far, missing (inf) or all missing, normals of every sign (for the self-check and the tests)."""
+    from .constants import WALL_RAYS
+
+    n_k = rng.normal(size=(K, 3))
+    n_k /= np.linalg.norm(n_k, axis=1, keepdims=True)
+    n_k[0], n_k[1] = [0.0, 0.0, -1.0], [0.0, 0.0, 1.0]
+    wall = rng.uniform(0.05, 1.0, (K, WALL_RAYS)).astype(np.float32)
+    wall[rng.random((K, WALL_RAYS)) < 0.3] = np.inf
+    wall[2] = np.inf
+    return (rng.integers(0, m, w), rng.integers(0, K, w), rng.uniform(-1, 1, (m, 3)), rng.uniform(-1, 1, (K, 3)), n_k,
+            wall, rng.uniform(0.1, 1.5, K))
 
 
 def _grid_hits(rng, T: int, h: int, albedo: bool = True, open_cells: bool = True):

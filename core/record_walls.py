@@ -26,6 +26,12 @@ def _ray_angle(i) -> np.ndarray:
     return SECTOR_OFFSET + 2 * np.pi * (np.asarray(i) + 0.5) / WALL_RAYS
 
 
+def sector_directions() -> tuple[np.ndarray, np.ndarray]:
+    """(cos, sin) (WALL_RAYS,) of the sector rays' angles (:func:`_ray_angle`), as :class:`_Sector` computes them."""
+    angle = _ray_angle(np.arange(WALL_RAYS))
+    return np.cos(angle), np.sin(angle)
+
+
 def wall_distances(caster, p_k: np.ndarray, n_k: np.ndarray, reach: np.ndarray) -> np.ndarray:
     """(K, WALL_RAYS) float32 distance to the nearest wall per sector of each record's tangent plane.
 

@@ -223,6 +223,26 @@ def test_morton_keys_and_order_equal_numpy(case):
         native_kernels.morton_order(LIB, p[:, :2])
 
 
+def test_record_walls_equal_numpy():
+    from pdic.core.record_walls import beyond_wall_and_reach
+
+    rng = np.random.default_rng(31)
+    rows, records, p, p_k, n_k, wall, reach = native_kernels._wall_pairs(rng, 3000, 500, 100_000)
+    p[0], rows[:40], records[:40] = p_k[7], 0, 7  # a point on its record: atan2(0, 0)
+    want = beyond_wall_and_reach(wall[records], p[rows] - p_k[records], n_k[records], reach[records])
+    got = native_kernels.pair_walls(LIB, rows, records, p, p_k, n_k, wall, reach)
+    assert all(np.array_equal(a, b) for a, b in zip(want, got))
+    past_reach, past_far = want
+    assert past_reach.mean() > 0.1 and (past_reach & ~past_far).mean() > 0.01 and past_far.mean() > 0.01
+    assert not past_reach[records == 2].any()  # a record with no wall in any sector
+    with pytest.raises(ValueError, match="pair up"):
+        native_kernels.pair_walls(LIB, rows, records[:-1], p, p_k, n_k, wall, reach)
+    with pytest.raises(ValueError, match="past the points"):  # the C would read another record's memory
+        native_kernels.pair_walls(LIB, rows, np.full_like(records, len(p_k)), p, p_k, n_k, wall, reach)
+    with pytest.raises(ValueError, match="WALL_RAYS"):
+        native_kernels.pair_walls(LIB, rows, records, p, p_k, n_k, wall[:, :5], reach)
+
+
 def test_dots_sum_left_to_right():
     a, b = np.array([[1e16, 1.0, -1e16]]), np.ones((1, 3))
     assert dots(a, b)[0] == 0.0  # (1e16 + 1) - 1e16: the 1 is lost; einsum's (a0 + a2) + a1 would keep it

@@ -1,9 +1,11 @@
-/* Compiled kernels of Equation 3 (paper Equations 1 to 3), of the albedo at hits, of pass 3's gathering
- * rays, their hits, of point lights' shadow rays and of the lookups' Morton order, for core/native_kernels.py.
+/* Compiled kernels of Equation 3 (paper Equations 1 to 3) and its records' wall sectors, of the albedo at hits,
+ * of pass 3's gathering rays, their hits, of point lights' shadow rays and of the lookups' Morton order, for
+ * core/native_kernels.py.
  *
  * Each function is the loop form of a numpy function in core/ (named in its comment) and does
  * the same floating-point operations in the same order, so its results are identical to the bit:
- * built with -ffp-contract=off (no fused multiply-adds) and without -ffast-math. Arrays are
+ * built with -ffp-contract=off (no fused multiply-adds) and without -ffast-math (pdic_pair_walls, whose
+ * angle libm rounds as it does, answers the same but for points within a rounding of an edge). Arrays are
  * C-contiguous, of the types each signature names; the caller checks shapes, dtypes and indices.
  * No allocation, no globals: safe to call from several threads at once (ctypes releases the GIL).
  */
@@ -23,7 +25,7 @@
 #define PDIC_FOUR_PI 12.566370614359172
 
 /* Bumped whenever a signature changes: core/native_kernels.py refuses a library of another version. */
-PDIC_EXPORT int64_t pdic_native_version(void) { return 7; }
+PDIC_EXPORT int64_t pdic_native_version(void) { return 8; }
 
 /* core.zone_grid.ZoneGrid.pairs: every (point, record) with |q - p_k|^2 <= zone_k^2, points in order,
  * each point's cell entries in order. Dense cell table: first (n_cells + 1), else the sorted occupied
@@ -419,6 +421,67 @@ PDIC_EXPORT void pdic_hit_cells(const int64_t *triangle, const double *barycentr
             near_out[k] = (uint8_t)near;
             gap_out[k] = (uint8_t)gap;
         }
+    }
+}
+
+/* The far end of a sector polygon's side past a ray that met nothing (record_walls._Sector.beyond): the ray's
+ * wall t, else `far`, shortened by the wall margin, kept off zero. */
+static inline double wall_end(double t, double far, double margin_keep, double tiny) {
+    double v = (isfinite(t) ? t : far) * margin_keep;
+    return v > tiny ? v : (isnan(v) ? v : tiny);
+}
+
+/* record_walls._Sector.beyond: is the point (x, y) in the record's tangent frame past the segment between
+ * sector rays i and j's wall points (far: what stands in for a ray that met nothing)? */
+static inline int past_segment(double x, double y, double t_i, double t_j, double far, const double *cos_a,
+                               const double *sin_a, int64_t i, int64_t j, double margin_keep, double tiny) {
+    double u_i = wall_end(t_i, far, margin_keep, tiny), u_j = wall_end(t_j, far, margin_keep, tiny);
+    double hx_i = u_i * cos_a[i], hy_i = u_i * sin_a[i];
+    double hx_j = u_j * cos_a[j], hy_j = u_j * sin_a[j];
+    double ex = hx_j - hx_i, ey = hy_j - hy_i;
+    double side_point = ex * (y - hy_i) - ey * (x - hx_i);
+    double side_origin = ex * (0.0 - hy_i) - ey * (0.0 - hx_i);
+    return (isfinite(t_i) || isfinite(t_j)) && (side_point * side_origin < 0.0);
+}
+
+/* core.record_walls.beyond_wall_and_reach for pairs (w,) of points p (m, 3) and records p_k, n_k (K, 3) with
+ * sector walls wall (K, S) float32 and reach (K,): past_reach and past_far (w,). The record's frame is
+ * sampling.orthonormal_basis's. The answers are numpy's but for a point within a rounding of a sector's or a
+ * segment's edge: the sector comes from libm's atan2, which numpy's SIMD one (AVX-512 CPUs) rounds otherwise
+ * in the last bit for a third of its arguments, and np.einsum's order of summing three products is its own.
+ * cos_a, sin_a (S,): the sector rays' directions (record_walls._ray_angle), as numpy computes them. */
+PDIC_EXPORT void pdic_pair_walls(const int64_t *rows, const int64_t *records, int64_t w, const double *p,
+                                 const double *p_k, const double *n_k, const float *wall, int64_t S,
+                                 const double *reach, const double *cos_a, const double *sin_a, double offset,
+                                 double far_wall, double margin_keep, double tiny, uint8_t *past_reach,
+                                 uint8_t *past_far) {
+    for (int64_t k = 0; k < w; ++k) {
+        int64_t r = records[k];
+        const double *q = p + 3 * rows[k], *c = p_k + 3 * r, *nk = n_k + 3 * r;
+        double d[3] = {q[0] - c[0], q[1] - c[1], q[2] - c[2]};
+        double sign = nk[2] >= 0.0 ? 1.0 : -1.0;
+        double a = -1.0 / (sign + nk[2]);
+        double b = nk[0] * nk[1] * a;
+        double t1[3] = {1.0 + sign * nk[0] * nk[0] * a, sign * b, -sign * nk[0]};
+        double t2[3] = {b, sign + nk[1] * nk[1] * a, -nk[1]};
+        /* np.einsum("ij,ij->i")'s order here: (first + last) + middle. */
+        double x = (d[0] * t1[0] + d[2] * t1[2]) + d[1] * t1[1];
+        double y = (d[0] * t2[0] + d[2] * t2[2]) + d[1] * t2[1];
+        double turn = (atan2(y, x) - offset) / PDIC_TWO_PI;
+        double m = fmod(turn, 1.0);  /* numpy's remainder: the divisor's sign, +0 for an exact multiple */
+        if (m != 0.0) {
+            if (m < 0.0) m += 1.0;
+        } else {
+            m = 0.0;
+        }
+        turn = m * (double)S - 0.5;
+        int64_t i = isnan(turn) ? 0 : (int64_t)floor(turn);
+        i = ((i % S) + S) % S;
+        int64_t j = (i + 1) % S;
+        double t_i = (double)wall[S * r + i], t_j = (double)wall[S * r + j];
+        double far = far_wall * (isfinite(t_i) ? t_i : (isfinite(t_j) ? t_j : 1.0));
+        past_reach[k] = (uint8_t)past_segment(x, y, t_i, t_j, reach[r], cos_a, sin_a, i, j, margin_keep, tiny);
+        past_far[k] = (uint8_t)past_segment(x, y, t_i, t_j, far, cos_a, sin_a, i, j, margin_keep, tiny);
     }
 }
 
