@@ -45,9 +45,20 @@ def orthonormal_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def to_world(w_local: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """Rotate z-up local directions (..., 3) into the frame of unit normals ``n`` (..., 3)."""
-    t1, t2 = orthonormal_basis(n)
-    return w_local[..., 0:1] * t1 + w_local[..., 1:2] * t2 + w_local[..., 2:3] * np.asarray(n, np.float64)
+    """Rotate z-up local directions (..., 3) into the frame of unit normals ``n`` (..., 3): w_x t1 + w_y t2 + w_z n
+    with :func:`orthonormal_basis`'s tangents, written a component at a time (no (..., 3) tangents: a bake
+    turns ~40 M directions, for its texels' validity and its gap walks)."""
+    n = np.asarray(n, np.float64)
+    x, y, z = n[..., 0], n[..., 1], n[..., 2]
+    sign = np.where(z >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + z)
+    b = x * y * a
+    w_x, w_y, w_z = w_local[..., 0], w_local[..., 1], w_local[..., 2]
+    out = np.empty(np.broadcast_shapes(w_x.shape, x.shape) + (3,))
+    out[..., 0] = w_x * (1.0 + sign * x * x * a) + w_y * b + w_z * x
+    out[..., 1] = w_x * (sign * b) + w_y * (sign + y * y * a) + w_z * y
+    out[..., 2] = w_x * (-sign * x) + w_y * -y + w_z * z
+    return out
 
 
 # --------------------------------------------------------------------------- stratification
@@ -99,10 +110,12 @@ def cosine_hemisphere(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     w_local : (..., 3) float64 unit directions, z >= 0.
     pdf : (...,) float64 solid-angle density cos(theta) / pi, see :func:`cosine_hemisphere_pdf`.
     """
-    d = concentric_disk(u)[0]
-    z = np.sqrt(np.maximum(0.0, 1.0 - np.sum(d * d, axis=-1)))
-    w = np.concatenate([d, z[..., None]], axis=-1)
-    return w, cosine_hemisphere_pdf(z)
+    r, phi = _concentric_polar(u)
+    w = np.empty(r.shape + (3,))
+    w[..., 0] = r * np.cos(phi)
+    w[..., 1] = r * np.sin(phi)
+    w[..., 2] = np.sqrt(np.maximum(0.0, 1.0 - (w[..., 0] * w[..., 0] + w[..., 1] * w[..., 1])))
+    return w, cosine_hemisphere_pdf(w[..., 2])
 
 
 def cosine_hemisphere_pdf(cos_theta: np.ndarray) -> np.ndarray:
@@ -119,6 +132,13 @@ def concentric_disk(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     p : (..., 2) float64 points with |p| <= 1.
     pdf : (...,) float64 area density 1 / pi.
     """
+    r, phi = _concentric_polar(u)
+    p = np.stack([r * np.cos(phi), r * np.sin(phi)], axis=-1)
+    return p, np.full(p.shape[:-1], 1.0 / np.pi)
+
+
+def _concentric_polar(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(r, phi) (...,) of :func:`concentric_disk`'s points for u (..., 2)."""
     u = np.asarray(u, dtype=np.float64)
     a = 2.0 * u[..., 0] - 1.0
     b = 2.0 * u[..., 1] - 1.0
@@ -126,9 +146,7 @@ def concentric_disk(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     r = np.where(first, a, b)
     with np.errstate(divide="ignore", invalid="ignore"):
         phi = np.where(first, (np.pi / 4.0) * (b / a), (np.pi / 2.0) - (np.pi / 4.0) * (a / b))
-    phi = np.where((a == 0.0) & (b == 0.0), 0.0, phi)
-    p = np.stack([r * np.cos(phi), r * np.sin(phi)], axis=-1)
-    return p, np.full(p.shape[:-1], 1.0 / np.pi)
+    return r, np.where((a == 0.0) & (b == 0.0), 0.0, phi)
 
 
 def uniform_triangle(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

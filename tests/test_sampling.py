@@ -53,6 +53,29 @@ def test_to_world_maps_local_z_onto_normal(rng):
     assert np.allclose(sampling.to_world(np.tile([0.0, 0.0, 1.0], (50, 1)), n), n)
 
 
+@pytest.mark.parametrize("shape", ["per_point", "pattern", "one_normal"])
+def test_to_world_is_the_tangent_frames_sum_to_the_bit(rng, shape):
+    """w_x t1 + w_y t2 + w_z n with orthonormal_basis's tangents, summed in that order, for one frame per
+    direction, a pattern of directions per point, and one frame for all; normals (0, 0, +-1) included."""
+    w = sampling.cosine_hemisphere(rng.random((500, 2)))[0]
+    n = rng.normal(size=(500, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    n[:2] = [[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]]
+    w, n = {"per_point": (w, n), "pattern": (w[:9][None], n[:, None]), "one_normal": (w, n[7])}[shape]
+    t1, t2 = sampling.orthonormal_basis(n)
+    assert np.array_equal(sampling.to_world(w, n), w[..., 0:1] * t1 + w[..., 1:2] * t2 + w[..., 2:3] * n)
+
+
+def test_cosine_hemisphere_lifts_the_concentric_disk_to_the_bit(rng):
+    u = rng.random((1000, 2))
+    u[:3] = [[0.5, 0.5], [0.0, 0.0], [0.5, 0.25]]  # the disk's centre (phi 0) and its axes
+    d = sampling.concentric_disk(u)[0]
+    w, pdf = sampling.cosine_hemisphere(u)
+    assert np.array_equal(w[:, :2], d)
+    assert np.array_equal(w[:, 2], np.sqrt(np.maximum(0.0, 1.0 - np.sum(d * d, axis=-1))))
+    assert np.array_equal(pdf, np.maximum(w[:, 2], 0.0) / np.pi)
+
+
 @pytest.mark.parametrize("m,grid", [(16, (4, 4)), (8, (2, 4)), (12, (3, 4)), (7, (1, 7)), (1, (1, 1))])
 def test_stratified_samples_put_one_sample_in_each_cell(rng, m, grid):
     assert sampling.strata(m) == grid
