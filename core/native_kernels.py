@@ -297,7 +297,9 @@ def pair_walls(lib, rows, records, p, p_k, n_k, wall, reach) -> tuple[np.ndarray
 
     rows, records = _i64(rows), _i64(records)
     p, p_k, n_k, reach = _f64(p), _f64(p_k), _f64(n_k), _f64(reach)
-    wall = np.ascontiguousarray(wall, np.float32)
+    if wall.dtype != np.float32:  # as IrradianceCache keeps them: numpy would read other values
+        raise ValueError(f"walls must be float32, got {wall.dtype}")
+    wall = np.ascontiguousarray(wall)
     for a, name in ((p, "p"), (p_k, "p_k"), (n_k, "n_k")):
         if a.ndim != 2 or a.shape[1] != 3:
             raise ValueError(f"{name} must be (n, 3), got {a.shape}")

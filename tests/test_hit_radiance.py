@@ -203,6 +203,18 @@ def test_one_k_nearest_query_answers_the_nearest_of_points_asked_on_both_sides()
     one_side.expect_k(np.arange(50, 250))
     assert np.array_equal(one_side._tables[1][50:250, 0], nearest[50:250])
     assert (one_side._tables[1][:50] == -1).all() and (one_side._tables[1][250:] == -1).all()
+    # Photons in coincident pairs: the two queries may order a tie otherwise, but find a photon as near.
+    twin = np.repeat(np.arange(count), 2)
+    twins = PhotonDensity(PhotonMap(**{f: getattr(photons, f)[twin] for f in ("p", "n", "wi", "power", "d_prev", "prev",
+                                                                              "bounce", "triangle", "albedo")},
+                                    emitted=2 * count))
+    tied = NearestPhotons(twins, q)
+    tied.expect_k(np.arange(400))
+
+    def distance(picks):
+        return np.linalg.norm(twins.p[picks].astype(np.float64) - q, axis=1)
+
+    assert np.array_equal(distance(tied.nearest(np.arange(400))), distance(cKDTree(twins.p).query(q, k=1)[1]))
 
 
 def _hit_grid(rng, T: int) -> HitGrid:

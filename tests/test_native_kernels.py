@@ -241,6 +241,8 @@ def test_record_walls_equal_numpy():
         native_kernels.pair_walls(LIB, rows, np.full_like(records, len(p_k)), p, p_k, n_k, wall, reach)
     with pytest.raises(ValueError, match="WALL_RAYS"):
         native_kernels.pair_walls(LIB, rows, records, p, p_k, n_k, wall[:, :5], reach)
+    with pytest.raises(ValueError, match="float32"):
+        native_kernels.pair_walls(LIB, rows, records, p, p_k, n_k, wall.astype(np.float64), reach)
 
 
 def test_dots_sum_left_to_right():
