@@ -36,18 +36,10 @@ class NearestPhotons:
         """(r, k) int64 the k nearest photons of each point ``rows`` indexes, nearest first."""
         return self._answers(rows, self.k)
 
-    def expect_both(self, *rows: np.ndarray):
-        """The points every side will ask about (``rows``: one (r,) index array per side) get their k
-        nearest now, which answers their nearest too (the first column). On a surface's two sides the
-        nearest photon faces one of them, so the other side asks for the k nearest anyway: one query
-        instead of a nearest one and then a k-nearest one (Sponza's hit grid, at most of its cells)."""
-        both = rows[0]
-        for r in rows[1:]:
-            both = np.intersect1d(both, r, assume_unique=True)
-        self.expect_k(both)
-
     def expect_k(self, rows: np.ndarray):
-        """Points ``rows`` (r,) distinct get their k nearest now, which answers their nearest too."""
+        """Points ``rows`` (r,) distinct get their k nearest now, which answers their nearest too (the first
+        column): one query where a point would ask for its nearest and then for its k nearest. A point asked
+        on both sides of a surface is queried once."""
         if len(rows) and self.k > 1:
             near = self._answers(rows, self.k)
             table = self._tables.get(1)

@@ -433,18 +433,13 @@ def _indirect_facing(caster, sources, q: np.ndarray, normals: tuple, known: np.n
     neighbours = NearestPhotons(sources.density, q)
     # The records a point may take depend on where it is, not on the side it faces: one search for all sides.
     pairs = sources.lookup.candidates(q) if len(normals) > 1 else None
-    looked = []  # per side: (normals in Morton order, E, holes, the holes' picks)
+    out, hole_rays = [], 0
+    picks = np.full((len(normals), len(q)), NOT_ASKED, np.int64)
     for side, n_hit in enumerate(normals):
         n_hit = n_hit[order]
         E_sorted, w_sum = sources.lookup.irradiance(q, n_hit, pairs)
         hole = np.flatnonzero(w_sum <= 0)
         pick = np.full(len(hole), NOT_ASKED, np.int64) if known is None else known[side, order[hole]]
-        looked.append((n_hit, E_sorted, hole, pick))
-    if sources.nearest_photon_fallback and len(normals) > 1:
-        neighbours.expect_both(*(hole[pick == NOT_ASKED] for _, _, hole, pick in looked))
-    out, hole_rays = [], 0
-    picks = np.full((len(normals), len(q)), NOT_ASKED, np.int64)
-    for side, (n_hit, E_sorted, hole, pick) in enumerate(looked):
         if len(hole) and sources.nearest_photon_fallback:
             ask = np.flatnonzero(pick == NOT_ASKED)
             if len(ask):

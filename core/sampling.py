@@ -34,30 +34,29 @@ def orthonormal_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     -------
     t1, t2 : (..., 3) float64 unit tangents with t1 x t2 = n.
     """
+    t1, t2, _ = _tangent_components(n)
+    return np.stack(t1, axis=-1), np.stack(t2, axis=-1)
+
+
+def _tangent_components(n: np.ndarray) -> tuple[tuple, tuple, np.ndarray]:
+    """(t1's components, t2's, n as float64): :func:`orthonormal_basis`'s tangents, each component (...,)."""
     n = np.asarray(n, dtype=np.float64)
     x, y, z = n[..., 0], n[..., 1], n[..., 2]
     sign = np.where(z >= 0.0, 1.0, -1.0)
     a = -1.0 / (sign + z)
     b = x * y * a
-    t1 = np.stack([1.0 + sign * x * x * a, sign * b, -sign * x], axis=-1)
-    t2 = np.stack([b, sign + y * y * a, -y], axis=-1)
-    return t1, t2
+    return (1.0 + sign * x * x * a, sign * b, -sign * x), (b, sign + y * y * a, -y), n
 
 
 def to_world(w_local: np.ndarray, n: np.ndarray) -> np.ndarray:
     """Rotate z-up local directions (..., 3) into the frame of unit normals ``n`` (..., 3): w_x t1 + w_y t2 + w_z n
     with :func:`orthonormal_basis`'s tangents, written a component at a time (no (..., 3) tangents: a bake
     turns ~40 M directions, for its texels' validity and its gap walks)."""
-    n = np.asarray(n, np.float64)
-    x, y, z = n[..., 0], n[..., 1], n[..., 2]
-    sign = np.where(z >= 0.0, 1.0, -1.0)
-    a = -1.0 / (sign + z)
-    b = x * y * a
+    t1, t2, n = _tangent_components(n)
     w_x, w_y, w_z = w_local[..., 0], w_local[..., 1], w_local[..., 2]
-    out = np.empty(np.broadcast_shapes(w_x.shape, x.shape) + (3,))
-    out[..., 0] = w_x * (1.0 + sign * x * x * a) + w_y * b + w_z * x
-    out[..., 1] = w_x * (sign * b) + w_y * (sign + y * y * a) + w_z * y
-    out[..., 2] = w_x * (-sign * x) + w_y * -y + w_z * z
+    out = np.empty(np.broadcast_shapes(w_x.shape, n.shape[:-1]) + (3,))
+    for c in range(3):
+        out[..., c] = w_x * t1[c] + w_y * t2[c] + w_z * n[..., c]
     return out
 
 

@@ -172,8 +172,8 @@ def test_a_record_just_in_front_of_a_wall_reads_the_wall_behind_it_not_a_cell_in
 
 
 def test_one_k_nearest_query_answers_the_nearest_of_points_asked_on_both_sides():
-    """The hit grid asks both sides of a centroid; where both fall to the fallback, one k-nearest query
-    answers its nearest too, the same photons a fresh query finds; so does one asked for one side's points."""
+    """The hit grid asks both sides of a centroid, one side after the other: each side's points get their k nearest
+    in one query, which answers their nearest too, the same photons a fresh query finds."""
     from scipy.spatial import cKDTree
 
     from pdic.core.density import PhotonDensity
@@ -193,7 +193,8 @@ def test_one_k_nearest_query_answers_the_nearest_of_points_asked_on_both_sides()
     q = np.random.default_rng(5).uniform(-1, 1, (400, 3))
     front, back = np.arange(0, 300), np.arange(100, 400)
     neighbours = NearestPhotons(density, q)
-    neighbours.expect_both(front, back)
+    neighbours.expect_k(front)
+    neighbours.expect_k(back)  # rows 100-299 are answered already
     _, nearest = cKDTree(density.p).query(q, k=1)
     _, k_nearest = cKDTree(density.p).query(q, k=neighbours.k)
     assert np.array_equal(neighbours.nearest(np.arange(400)), nearest)
