@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import native_kernels
 from .constants import GRADIENT_LIMIT
 from .hemisphere import Hemisphere, gradient_to_world
 from .vectors import norms
@@ -77,7 +78,11 @@ class CellSums:
 
     def add_real_radiance(self, cell: np.ndarray, L: np.ndarray):
         """Add (h, 3) radiance to the distinct cells of real rays already counted by :meth:`add_real_rays`."""
-        self.L_sum[cell, :3] += L
+        lib = native_kernels.library()
+        if lib is None:
+            self.L_sum[cell, :3] += L
+        else:
+            native_kernels.add_rows3(lib, self.L_sum, cell, L)
 
     def add_sky(self, cell: np.ndarray, L_world: np.ndarray):
         """The world's radiance L_world, (3,) or one per cell (h, 3), into the sky channels of the distinct
@@ -107,15 +112,21 @@ class CellSums:
     def irradiance_and_gradients(self, t1, t2, n, r_floor: float) -> tuple:
         """(E (B, c) >= 0, grad_r, grad_t (B, c, 3) world, R (B,) harmonic mean hit distance); c = 6 with
         the sky's channels."""
+        lib = native_kernels.library()
+        E, g_r, g_t = self.local_gradients(r_floor) if lib is None else native_kernels.cell_gradients(lib, self, r_floor)
+        R = np.divide(self.inv_d_count, self.inv_d_sum, out=np.full(self.B, np.inf), where=self.inv_d_sum > 0)
+        return np.maximum(E, 0.0), gradient_to_world(g_r, t1, t2, n), gradient_to_world(g_t, t1, t2, n), R
+
+    def local_gradients(self, r_floor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(E (B, c), grad_r, grad_t (B, c, 3) in the records' local frames) from the cells' means, no cell
+        nearer than r_floor (compiled: :func:`core.native_kernels.cell_gradients`)."""
         B, C = self.B, self.H.cells
         L_cell = (self.L_sum / np.maximum(self.count, 1)[:, None]).reshape(B, C, -1)
         rot_cell = (self.rot_sum / np.maximum(self.count, 1)[:, None]).reshape(B, C, 3)
         # A hit at (nearly) zero distance would make the translational gradient overflow: no cell
         # is nearer than r_floor (gradient limiting then caps what is left).
         r_cell = np.maximum(self.r_min.reshape(B, C), r_floor)
-        E, g_r, g_t = self.H.irradiance_and_gradients(L_cell, r_cell, rot_cell)
-        R = np.divide(self.inv_d_count, self.inv_d_sum, out=np.full(B, np.inf), where=self.inv_d_sum > 0)
-        return np.maximum(E, 0.0), gradient_to_world(g_r, t1, t2, n), gradient_to_world(g_t, t1, t2, n), R
+        return self.H.irradiance_and_gradients(L_cell, r_cell, rot_cell)
 
 
 def limit_gradients(E: np.ndarray, grad_t: np.ndarray, grad_r: np.ndarray, zone_radius: np.ndarray

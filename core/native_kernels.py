@@ -1,6 +1,6 @@
 """Compiled kernels of Equation 3 (with its records' wall sectors), the albedo at hits, pass 3's gathering
-rays and hits, point lights' shadow rays and the lookups' Morton order, with the numpy code they replace as
-the fallback.
+rays and hits, its records' E_k and gradients from their cells, point lights' shadow rays and the lookups'
+Morton order, with the numpy code they replace as the fallback.
 
 Equation 3 is looked up at every texel sample, at every gathering ray's hit and at every hit-grid cell,
 and its numpy form spends most of its time making arrays per (point, record) pair; the albedo is read at
@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-VERSION = 8
+VERSION = 9
 """The C library's ``pdic_native_version()`` this module calls; a library of another version is not used."""
 NATIVE_DIR = Path(__file__).resolve().parent / "native"
 SUFFIX = {"linux": ".so", "windows": ".dll", "macos": ".dylib"}
@@ -93,6 +93,10 @@ def _declare(lib) -> None:
     lib.pdic_morton_order.argtypes = [_PTR, _I64] + [_PTR] * 4
     lib.pdic_pair_walls.restype = None
     lib.pdic_pair_walls.argtypes = [_PTR, _PTR, _I64] + [_PTR] * 4 + [_I64] + [_PTR] * 3 + [_F64] * 4 + [_PTR] * 2
+    lib.pdic_cell_gradients.restype = _I64
+    lib.pdic_cell_gradients.argtypes = [_PTR] * 4 + [_I64] * 4 + [_F64] * 2 + [_PTR] * 7
+    lib.pdic_add_rows3.restype = None
+    lib.pdic_add_rows3.argtypes = [_PTR, _I64, _PTR, _PTR, _I64, _PTR]
     lib.pdic_hit_cells.restype = None
     lib.pdic_hit_cells.argtypes = ([_PTR] * 5 + [_I64] + [_PTR] * 3 + [_I64] + [_PTR] * 4 + [_F64, _PTR] + [_F64] * 4
                                    + [_PTR] * 7)
@@ -253,6 +257,34 @@ def tally_real_rays(lib, sums, cells: np.ndarray, w_local: np.ndarray, hits, ori
     h = lib.pdic_tally_real_rays(_ptr(arrays[0]), n, sums.H.cells, *map(_ptr, arrays[1:]), _ptr(sums.rot_sum),
                                  _ptr(sums.count), _ptr(sums.r_min), _ptr(inv_sum), _ptr(inv_n), _ptr(hit), _ptr(q))
     return hit[:h], q[:h], inv_sum, inv_n
+
+
+def cell_gradients(lib, sums, r_floor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:meth:`core.gather_cells.CellSums.irradiance_and_gradients`'s cells into E (B, c), grad_r, grad_t
+    (B, c, 3) in the records' local frames, as :meth:`core.hemisphere.Hemisphere.irradiance_and_gradients`
+    computes them from ``sums`` (a CellSums) with hit distances at least ``r_floor``."""
+    H, B = sums.H, sums.B
+    c = sums.L_sum.shape[1]
+    if c > 6 or sums.L_sum.shape[0] != B * H.cells:
+        raise ValueError(f"cell_gradients: {sums.L_sum.shape} cell sums for {B} records of {H.cells} cells")
+    arrays = [_f64(a) for a in (sums.L_sum, sums.rot_sum, sums.count, sums.r_min, *H.gradient_coefficients())]
+    E, grad_r, grad_t = np.empty((B, c)), np.empty((B, c, 3)), np.empty((B, c, 3))
+    if lib.pdic_cell_gradients(*map(_ptr, arrays[:4]), B, H.rows, H.columns, c, float(r_floor), H.cell_weight,
+                               *map(_ptr, arrays[4:]), _ptr(E), _ptr(grad_r), _ptr(grad_t)) != 0:
+        raise MemoryError(f"cell_gradients: no scratch memory for {H.cells} cells")
+    return E, grad_r, grad_t
+
+
+def add_rows3(lib, table: np.ndarray, rows: np.ndarray, values: np.ndarray) -> None:
+    """``table[rows, :3] += values`` in place, as numpy does it (a row given twice keeps its last sum): table
+    (n, w >= 3) float64 C-contiguous, rows (h,) in [0, n), values (h, 3)."""
+    rows, values = _i64(rows), _f64(values)
+    if (table.dtype != np.float64 or table.ndim != 2 or table.shape[1] < 3 or not table.flags.c_contiguous
+            or values.shape != (len(rows), 3)):
+        raise ValueError(f"add_rows3: a {table.dtype}{table.shape} table, {values.shape} values for {len(rows)} rows")
+    if len(rows) and (rows.min() < 0 or rows.max() >= len(table)):
+        raise IndexError(f"add_rows3: rows outside the table's {len(table)}")
+    lib.pdic_add_rows3(_ptr(table), table.shape[1], _ptr(rows), _ptr(values), len(rows), _ptr(np.empty_like(values)))
 
 
 def point_light_rays(lib, p, n_s, n_g, c, epsilon: float) -> tuple:
@@ -430,7 +462,37 @@ def _self_check_gathering(lib, rng) -> str | None:
     same &= all(np.array_equal(getattr(sums[0], f), getattr(sums[1], f)) for f in ("rot_sum", "count", "r_min"))
     if not same:
         return "gathering tallies differ"
+    return _self_check_cells(lib, rng)
+
+
+def _self_check_cells(lib, rng) -> str | None:
+    from .gather_cells import CellSums
+    from .hemisphere import Hemisphere
+
+    for rows, columns, sky in ((3, 5, False), (2, 4, True)):
+        sums = _cell_sums(CellSums(3, Hemisphere(rows, columns), sky), rng)
+        want, got = sums.local_gradients(1e-3), cell_gradients(lib, sums, 1e-3)
+        if not all(np.array_equal(x, y) for x, y in zip(want, got)):
+            return "cell gradients differ"
+        rows = rng.integers(0, sums.size, 50)  # some twice: the last sum stays, as numpy's
+        values = rng.normal(size=(50, 3))
+        want = sums.L_sum.copy()
+        want[rows, :3] += values
+        add_rows3(lib, sums.L_sum, rows, values)
+        if not np.array_equal(want, sums.L_sum):
+            return "cell radiance sums differ"
     return _self_check_lights(lib, rng)
+
+
+def _cell_sums(sums, rng):
+    """``sums`` (a CellSums) filled at random as gathering fills it: some cells empty, several rays in others,
+    misses at infinity, radiances from 0 to 1e3, a few negative rotational axes."""
+    scale = rng.choice([0.0, 1e-3, 1.0, 1e3], size=sums.L_sum.shape)
+    sums.L_sum[:] = rng.random(sums.L_sum.shape) * scale
+    sums.rot_sum[:] = rng.normal(size=sums.rot_sum.shape)
+    sums.count[:] = rng.integers(0, 4, sums.size)
+    sums.r_min[:] = np.where(rng.random(sums.size) < 0.2, np.inf, rng.uniform(0.0, 2.0, sums.size))
+    return sums
 
 
 def _self_check_lights(lib, rng) -> str | None:

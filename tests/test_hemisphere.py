@@ -72,3 +72,23 @@ def test_translational_gradient_matches_ceiling_ramp(axis):
     assert E[0, 0] == pytest.approx(np.pi * L0, rel=1e-6)
     assert g_t[0, 0, axis] == pytest.approx(np.pi * g, rel=0.03)
     assert abs(g_t[0, 0, 1 - axis]) < 1e-9
+
+
+def test_ordered_sums_equal_the_matrix_products_to_rounding():
+    # The sums run term by term (the compiled kernel's order); as matrix products (BLAS's order) they differ
+    # in the last bits only.
+    rng = np.random.default_rng(4)
+    H, B = Hemisphere(6, 10), 5
+    L = rng.random((B, H.cells, 3))
+    r = rng.uniform(0.01, 2.0, (B, H.cells))
+    axis = rng.normal(size=(B, H.cells, 3))
+    E, g_r, g_t = H.irradiance_and_gradients(L, r, axis)
+    theta_step, phi_step, u, v_lo = H.gradient_coefficients()
+    L4, r3 = L.reshape(B, 6, 10, 3), r.reshape(B, 6, 10)
+    want_r = H.cell_weight * (L.transpose(0, 2, 1) @ axis)
+    theta = (theta_step[None, :, None] / np.minimum(r3[:, 1:], r3[:, :-1]))[..., None] * (L4[:, 1:] - L4[:, :-1])
+    phi = (phi_step[None, :, None] / np.minimum(r3, np.roll(r3, 1, axis=2)))[..., None] * (L4 - np.roll(L4, 1, axis=2))
+    want_t = theta.sum(axis=1).transpose(0, 2, 1) @ u + phi.sum(axis=1).transpose(0, 2, 1) @ v_lo
+    np.testing.assert_allclose(E, H.cell_weight * L.sum(axis=1), rtol=0, atol=0)
+    np.testing.assert_allclose(g_r, want_r, rtol=1e-12, atol=1e-12 * np.abs(want_r).max())
+    np.testing.assert_allclose(g_t, want_t, rtol=1e-12, atol=1e-12 * np.abs(want_t).max())

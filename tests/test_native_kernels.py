@@ -171,6 +171,42 @@ def test_gathering_tallies_equal_numpy():
         assert np.array_equal(getattr(sums[0], name), getattr(sums[1], name)), name
 
 
+@pytest.mark.parametrize("rows, columns, sky", [(16, 32, False), (8, 16, True), (1, 6, False), (5, 1, False),
+                                               (1, 1, True)])
+def test_cell_gradients_equal_numpy(rows, columns, sky):
+    rng = np.random.default_rng(23)
+    sums = native_kernels._cell_sums(CellSums(40, Hemisphere(rows, columns), sky), rng)
+    sums.r_min[::7] = 0.0  # a hit on the record: the floor keeps the gradient finite
+    want = sums.local_gradients(1e-4)
+    got = native_kernels.cell_gradients(LIB, sums, 1e-4)
+    for name, x, y in zip(("E", "grad_r", "grad_t"), want, got):
+        assert np.array_equal(x, y), name
+    assert np.isfinite(want[2]).all() and (np.abs(want[2]) > 0).any() == (rows > 1 or columns > 1)
+
+
+@pytest.mark.parametrize("width", [3, 6])
+def test_cell_radiance_sums_equal_numpy(width):
+    rng = np.random.default_rng(29)
+    table = rng.normal(size=(5000, width))
+    rows = rng.integers(0, 5000, 20000)  # many rows twice: numpy keeps each row's last sum, not their total
+    values = rng.normal(size=(20000, 3))
+    want = table.copy()
+    want[rows, :3] += values
+    native_kernels.add_rows3(LIB, table, rows, values)
+    assert np.array_equal(table, want)
+    with pytest.raises(IndexError, match="rows outside"):
+        native_kernels.add_rows3(LIB, table, np.array([5000]), values[:1])
+    with pytest.raises(ValueError, match="add_rows3"):
+        native_kernels.add_rows3(LIB, table[:, :2].copy(), rows, values)
+
+
+def test_cell_gradients_refuse_more_channels_than_the_kernel_holds():
+    sums = CellSums(2, Hemisphere(2, 2))
+    sums.L_sum = np.zeros((sums.size, 9))
+    with pytest.raises(ValueError, match="cell sums"):
+        native_kernels.cell_gradients(LIB, sums, 1e-3)
+
+
 @pytest.mark.parametrize("albedo, open_cells, corner, gap", [(True, True, True, True), (False, False, True, True),
                                                              (True, True, False, True), (True, False, True, False)])
 def test_hit_cells_equal_numpy(albedo, open_cells, corner, gap):

@@ -11,6 +11,7 @@
  */
 #include <math.h>
 #include <stdint.h>
+#include <stdlib.h>
 #include <string.h>
 
 #if defined(_WIN32)
@@ -25,7 +26,7 @@
 #define PDIC_FOUR_PI 12.566370614359172
 
 /* Bumped whenever a signature changes: core/native_kernels.py refuses a library of another version. */
-PDIC_EXPORT int64_t pdic_native_version(void) { return 8; }
+PDIC_EXPORT int64_t pdic_native_version(void) { return 9; }
 
 /* core.zone_grid.ZoneGrid.pairs: every (point, record) with |q - p_k|^2 <= zone_k^2, points in order,
  * each point's cell entries in order. Dense cell table: first (n_cells + 1), else the sorted occupied
@@ -560,4 +561,114 @@ PDIC_EXPORT void pdic_morton_order(const double *p, int64_t m, uint64_t *keys, u
         int64_t *o = oa; oa = ob; ob = o;
     }
     if (oa != order) memcpy(order, oa, (size_t)m * sizeof(int64_t));
+}
+
+/* numpy's np.minimum and np.maximum of two doubles: a NaN in either gives NaN. */
+static inline double np_min(double a, double b) { return isnan(a) ? a : (isnan(b) ? b : (a < b ? a : b)); }
+static inline double np_max(double a, double b) { return isnan(a) ? a : (isnan(b) ? b : (a > b ? a : b)); }
+
+/* core.gather_cells.CellSums.irradiance_and_gradients up to the world frame, for B records of M x N cells
+ * and c channels: each cell's mean radiance L_sum / max(count, 1) (B M N, c) and rotational axis rot_sum /
+ * max(count, 1) (B M N, 3), its distance max(r_min, r_floor, 1e-300), then core.hemisphere.Hemisphere.
+ * irradiance_and_gradients: E (B, c), grad_r and grad_t (B, c, 3) in the local frame. Every sum runs in
+ * the order numpy's runs it (over a leading axis: one term after another from the first).
+ * theta_step (M - 1,), phi_step (M,), u and v_lo (N, 3): Hemisphere.gradient_coefficients. Returns 0, or -1
+ * when the scratch memory (M N (c + 4) doubles) could not be had. */
+PDIC_EXPORT int64_t pdic_cell_gradients(const double *L_sum, const double *rot_sum, const double *count,
+                                        const double *r_min, int64_t B, int64_t M, int64_t N, int64_t c,
+                                        double r_floor, double cell_weight, const double *theta_step,
+                                        const double *phi_step, const double *u, const double *v_lo,
+                                        double *E, double *grad_r, double *grad_t) {
+    int64_t C = M * N;
+    double *L = (double *)malloc(sizeof(double) * (size_t)(C * (c + 4)));
+    if (!L) return -1;
+    double *rot = L + C * c, *r = rot + 3 * C;
+    double term[6];
+    for (int64_t b = 0; b < B; ++b) {
+        const double *Ls = L_sum + b * C * c, *Rs = rot_sum + b * C * 3, *cs = count + b * C, *rm = r_min + b * C;
+        for (int64_t i = 0; i < C; ++i) {
+            double k = np_max(cs[i], 1.0);
+            if (k == 1.0) { /* a cell of one real ray or none, most of them: x / 1 is x, to the bit */
+                for (int64_t ch = 0; ch < c; ++ch) L[i * c + ch] = Ls[i * c + ch];
+                for (int x = 0; x < 3; ++x) rot[i * 3 + x] = Rs[i * 3 + x];
+            } else {
+                for (int64_t ch = 0; ch < c; ++ch) L[i * c + ch] = Ls[i * c + ch] / k;
+                for (int x = 0; x < 3; ++x) rot[i * 3 + x] = Rs[i * 3 + x] / k;
+            }
+            r[i] = np_max(np_max(rm[i], r_floor), 1e-300);
+        }
+        double *Eb = E + b * c, *gr = grad_r + b * c * 3, *gt = grad_t + b * c * 3;
+        double sum[6], acc[6 * 3];
+        for (int64_t ch = 0; ch < c; ++ch) {
+            sum[ch] = L[ch];
+            for (int x = 0; x < 3; ++x) acc[ch * 3 + x] = L[ch] * rot[x];
+        }
+        for (int64_t i = 1; i < C; ++i) {
+            const double *Li = L + i * c, *ri = rot + i * 3;
+            for (int64_t ch = 0; ch < c; ++ch) {
+                sum[ch] += Li[ch];
+                for (int x = 0; x < 3; ++x) acc[ch * 3 + x] += Li[ch] * ri[x];
+            }
+        }
+        for (int64_t ch = 0; ch < c; ++ch) {
+            Eb[ch] = cell_weight * sum[ch];
+            for (int x = 0; x < 3; ++x) {
+                gr[ch * 3 + x] = cell_weight * acc[ch * 3 + x];
+                gt[ch * 3 + x] = 0.0;
+            }
+        }
+        if (M > 1) { /* theta boundaries (rows j-1 | j), j >= 1 */
+            double part[6 * 3];
+            for (int64_t k = 0; k < N; ++k) {
+                for (int64_t ch = 0; ch < c; ++ch) term[ch] = 0.0;
+                for (int64_t j = 1; j < M; ++j) {
+                    int64_t at = j * N + k, below = (j - 1) * N + k;
+                    double w = theta_step[j - 1] / np_min(r[at], r[below]);
+                    for (int64_t ch = 0; ch < c; ++ch) {
+                        double t = w * (L[at * c + ch] - L[below * c + ch]);
+                        term[ch] = j == 1 ? t : term[ch] + t;
+                    }
+                }
+                for (int64_t ch = 0; ch < c; ++ch)
+                    for (int x = 0; x < 3; ++x) {
+                        double t = term[ch] * u[k * 3 + x];
+                        part[ch * 3 + x] = k == 0 ? t : part[ch * 3 + x] + t;
+                    }
+            }
+            for (int64_t i = 0; i < c * 3; ++i) gt[i] += part[i];
+        }
+        if (N > 1) { /* phi boundaries (columns k-1 | k), wrapping round */
+            double part[6 * 3];
+            for (int64_t k = 0; k < N; ++k) {
+                int64_t before = (k + N - 1) % N;
+                for (int64_t j = 0; j < M; ++j) {
+                    int64_t at = j * N + k, side = j * N + before;
+                    double w = phi_step[j] / np_min(r[at], r[side]);
+                    for (int64_t ch = 0; ch < c; ++ch) {
+                        double t = w * (L[at * c + ch] - L[side * c + ch]);
+                        term[ch] = j == 0 ? t : term[ch] + t;
+                    }
+                }
+                for (int64_t ch = 0; ch < c; ++ch)
+                    for (int x = 0; x < 3; ++x) {
+                        double t = term[ch] * v_lo[k * 3 + x];
+                        part[ch * 3 + x] = k == 0 ? t : part[ch * 3 + x] + t;
+                    }
+            }
+            for (int64_t i = 0; i < c * 3; ++i) gt[i] += part[i];
+        }
+    }
+    free(L);
+    return 0;
+}
+
+/* numpy's `table[rows, :3] += values` for a (n, width) float64 table, rows (h,) and values (h, 3): every row's
+ * sum is taken from the table as it was (`scratch` (h, 3) holds them), then written in order, so a row met twice
+ * keeps its last sum, as numpy's does (core.gather_cells.CellSums.add_real_radiance). */
+PDIC_EXPORT void pdic_add_rows3(double *table, int64_t width, const int64_t *rows, const double *values, int64_t h,
+                                double *scratch) {
+    for (int64_t i = 0; i < h; ++i)
+        for (int c = 0; c < 3; ++c) scratch[3 * i + c] = table[rows[i] * width + c] + values[3 * i + c];
+    for (int64_t i = 0; i < h; ++i)
+        for (int c = 0; c < 3; ++c) table[rows[i] * width + c] = scratch[3 * i + c];
 }
