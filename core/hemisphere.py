@@ -100,7 +100,7 @@ class Hemisphere:
         E = self.cell_weight * L.reshape(B, M * N, c).sum(axis=1)
         if rot_axis is None:
             theta_mid = self._angles()[2]
-            rot_axis = np.broadcast_to((np.tan(theta_mid)[:, None, None] * self.v_mid()[None]), (M, N, 3))
+            rot_axis = np.tan(theta_mid)[:, None, None] * self.v_mid()[None]  # (M, N, 3)
             rot_axis = np.broadcast_to(rot_axis.reshape(1, M * N, 3), (B, M * N, 3))
         # Rotational: the cell sum of L (n x w) dw (Ward & Heckbert write -tan with v pointing the other way).
         grad_r = self.cell_weight * _ordered_products(L.reshape(B, M * N, c), rot_axis.reshape(B, M * N, 3))
@@ -135,7 +135,10 @@ class Hemisphere:
 
 
 def _ordered_products(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(B, c, 3) sum over i of a[:, i, :, None] b[:, i, None, :] for a (B, I, c), b (B, I, 3), i in order."""
+    """(B, c, 3) sum over i of a[:, i, :, None] b[:, i, None, :] for a (B, I, c), b (B, I, 3), i in order.
+
+    numpy sums over a leading axis term by term from +0.0 while the trailing axes hold more than one value
+    (c >= 2 here; over a trailing axis of one it sums pairwise), which is what lets C match it to the bit."""
     return (a[:, :, :, None] * b[:, :, None, :]).sum(axis=1)
 
 

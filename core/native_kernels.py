@@ -264,9 +264,10 @@ def cell_gradients(lib, sums, r_floor: float) -> tuple[np.ndarray, np.ndarray, n
     (B, c, 3) in the records' local frames, as :meth:`core.hemisphere.Hemisphere.irradiance_and_gradients`
     computes them from ``sums`` (a CellSums) with hit distances at least ``r_floor``."""
     H, B = sums.H, sums.B
-    c = sums.L_sum.shape[1]
-    if c > 6 or sums.L_sum.shape[0] != B * H.cells:
-        raise ValueError(f"cell_gradients: {sums.L_sum.shape} cell sums for {B} records of {H.cells} cells")
+    size, c = B * H.cells, sums.L_sum.shape[1]
+    shapes = (sums.L_sum.shape, sums.rot_sum.shape, sums.count.shape, sums.r_min.shape)
+    if c > 6 or shapes != ((size, c), (size, 3), (size,), (size,)):
+        raise ValueError(f"cell_gradients: cell sums of shapes {shapes} for {B} records of {H.cells} cells")
     arrays = [_f64(a) for a in (sums.L_sum, sums.rot_sum, sums.count, sums.r_min, *H.gradient_coefficients())]
     E, grad_r, grad_t = np.empty((B, c)), np.empty((B, c, 3)), np.empty((B, c, 3))
     if lib.pdic_cell_gradients(*map(_ptr, arrays[:4]), B, H.rows, H.columns, c, float(r_floor), H.cell_weight,
@@ -280,7 +281,7 @@ def add_rows3(lib, table: np.ndarray, rows: np.ndarray, values: np.ndarray) -> N
     (n, w >= 3) float64 C-contiguous, rows (h,) in [0, n), values (h, 3)."""
     rows, values = _i64(rows), _f64(values)
     if (table.dtype != np.float64 or table.ndim != 2 or table.shape[1] < 3 or not table.flags.c_contiguous
-            or values.shape != (len(rows), 3)):
+            or not table.flags.writeable or values.shape != (len(rows), 3)):
         raise ValueError(f"add_rows3: a {table.dtype}{table.shape} table, {values.shape} values for {len(rows)} rows")
     if len(rows) and (rows.min() < 0 or rows.max() >= len(table)):
         raise IndexError(f"add_rows3: rows outside the table's {len(table)}")
@@ -472,7 +473,7 @@ def _self_check_cells(lib, rng) -> str | None:
     for rows, columns, sky in ((3, 5, False), (2, 4, True)):
         sums = _cell_sums(CellSums(3, Hemisphere(rows, columns), sky), rng)
         want, got = sums.local_gradients(1e-3), cell_gradients(lib, sums, 1e-3)
-        if not all(np.array_equal(x, y) for x, y in zip(want, got)):
+        if not all(_same_bits(x, y) for x, y in zip(want, got)):
             return "cell gradients differ"
         rows = rng.integers(0, sums.size, 50)  # some twice: the last sum stays, as numpy's
         values = rng.normal(size=(50, 3))
@@ -484,12 +485,19 @@ def _self_check_cells(lib, rng) -> str | None:
     return _self_check_lights(lib, rng)
 
 
+def _same_bits(x: np.ndarray, y: np.ndarray) -> bool:
+    """Equal float64 arrays to the bit, the sign of a zero included (np.array_equal takes -0.0 for 0.0)."""
+    return x.shape == y.shape and np.array_equal(np.ascontiguousarray(x).view(np.uint64),
+                                                 np.ascontiguousarray(y).view(np.uint64))
+
+
 def _cell_sums(sums, rng):
     """``sums`` (a CellSums) filled at random as gathering fills it: some cells empty, several rays in others,
     misses at infinity, radiances from 0 to 1e3, a few negative rotational axes."""
     scale = rng.choice([0.0, 1e-3, 1.0, 1e3], size=sums.L_sum.shape)
     sums.L_sum[:] = rng.random(sums.L_sum.shape) * scale
     sums.rot_sum[:] = rng.normal(size=sums.rot_sum.shape)
+    sums.rot_sum[: sums.H.cells] = -0.0  # a record whose products are all -0.0: numpy's sums give +0.0
     sums.count[:] = rng.integers(0, 4, sums.size)
     sums.r_min[:] = np.where(rng.random(sums.size) < 0.2, np.inf, rng.uniform(0.0, 2.0, sums.size))
     return sums

@@ -177,10 +177,12 @@ def test_cell_gradients_equal_numpy(rows, columns, sky):
     rng = np.random.default_rng(23)
     sums = native_kernels._cell_sums(CellSums(40, Hemisphere(rows, columns), sky), rng)
     sums.r_min[::7] = 0.0  # a hit on the record: the floor keeps the gradient finite
+    sums.L_sum[-sums.H.cells:] = -0.0  # a record whose every sum is of -0.0 terms: +0.0, as numpy's
     want = sums.local_gradients(1e-4)
     got = native_kernels.cell_gradients(LIB, sums, 1e-4)
     for name, x, y in zip(("E", "grad_r", "grad_t"), want, got):
-        assert np.array_equal(x, y), name
+        assert native_kernels._same_bits(x, y), name
+    assert not np.signbit(want[0][-1]).any()
     assert np.isfinite(want[2]).all() and (np.abs(want[2]) > 0).any() == (rows > 1 or columns > 1)
 
 
@@ -198,11 +200,18 @@ def test_cell_radiance_sums_equal_numpy(width):
         native_kernels.add_rows3(LIB, table, np.array([5000]), values[:1])
     with pytest.raises(ValueError, match="add_rows3"):
         native_kernels.add_rows3(LIB, table[:, :2].copy(), rows, values)
+    table.flags.writeable = False  # not written behind numpy's back
+    with pytest.raises(ValueError, match="add_rows3"):
+        native_kernels.add_rows3(LIB, table, rows, values)
 
 
-def test_cell_gradients_refuse_more_channels_than_the_kernel_holds():
+def test_cell_gradients_refuse_sums_the_kernel_would_read_past():
     sums = CellSums(2, Hemisphere(2, 2))
-    sums.L_sum = np.zeros((sums.size, 9))
+    sums.L_sum = np.zeros((sums.size, 9))  # more channels than the kernel holds
+    with pytest.raises(ValueError, match="cell sums"):
+        native_kernels.cell_gradients(LIB, sums, 1e-3)
+    sums = CellSums(2, Hemisphere(2, 2))
+    sums.r_min = sums.r_min[:-1]  # shorter than the records' cells
     with pytest.raises(ValueError, match="cell sums"):
         native_kernels.cell_gradients(LIB, sums, 1e-3)
 

@@ -1,13 +1,14 @@
 /* Compiled kernels of Equation 3 (paper Equations 1 to 3) and its records' wall sectors, of the albedo at hits,
- * of pass 3's gathering rays, their hits, of point lights' shadow rays and of the lookups' Morton order, for
- * core/native_kernels.py.
+ * of pass 3's gathering rays, their hits, their cells' sums and the records' E_k and gradients from them, of point
+ * lights' shadow rays and of the lookups' Morton order, for core/native_kernels.py.
  *
  * Each function is the loop form of a numpy function in core/ (named in its comment) and does
  * the same floating-point operations in the same order, so its results are identical to the bit:
  * built with -ffp-contract=off (no fused multiply-adds) and without -ffast-math (pdic_pair_walls, whose
  * angle libm rounds as it does, answers the same but for points within a rounding of an edge). Arrays are
  * C-contiguous, of the types each signature names; the caller checks shapes, dtypes and indices.
- * No allocation, no globals: safe to call from several threads at once (ctypes releases the GIL).
+ * No globals, and the one allocation (pdic_cell_gradients' scratch) is the call's own: safe to call from several
+ * threads at once (ctypes releases the GIL).
  */
 #include <math.h>
 #include <stdint.h>
@@ -568,10 +569,11 @@ static inline double np_min(double a, double b) { return isnan(a) ? a : (isnan(b
 static inline double np_max(double a, double b) { return isnan(a) ? a : (isnan(b) ? b : (a > b ? a : b)); }
 
 /* core.gather_cells.CellSums.irradiance_and_gradients up to the world frame, for B records of M x N cells
- * and c channels: each cell's mean radiance L_sum / max(count, 1) (B M N, c) and rotational axis rot_sum /
+ * and c <= 6 channels: each cell's mean radiance L_sum / max(count, 1) (B M N, c) and rotational axis rot_sum /
  * max(count, 1) (B M N, 3), its distance max(r_min, r_floor, 1e-300), then core.hemisphere.Hemisphere.
  * irradiance_and_gradients: E (B, c), grad_r and grad_t (B, c, 3) in the local frame. Every sum runs in
- * the order numpy's runs it (over a leading axis: one term after another from the first).
+ * the order numpy's runs it over a leading axis: from +0.0, one term after another (so a sum of -0.0 terms
+ * is +0.0, as numpy's).
  * theta_step (M - 1,), phi_step (M,), u and v_lo (N, 3): Hemisphere.gradient_coefficients. Returns 0, or -1
  * when the scratch memory (M N (c + 4) doubles) could not be had. */
 PDIC_EXPORT int64_t pdic_cell_gradients(const double *L_sum, const double *rot_sum, const double *count,
@@ -600,10 +602,10 @@ PDIC_EXPORT int64_t pdic_cell_gradients(const double *L_sum, const double *rot_s
         double *Eb = E + b * c, *gr = grad_r + b * c * 3, *gt = grad_t + b * c * 3;
         double sum[6], acc[6 * 3];
         for (int64_t ch = 0; ch < c; ++ch) {
-            sum[ch] = L[ch];
-            for (int x = 0; x < 3; ++x) acc[ch * 3 + x] = L[ch] * rot[x];
+            sum[ch] = 0.0;
+            for (int x = 0; x < 3; ++x) acc[ch * 3 + x] = 0.0;
         }
-        for (int64_t i = 1; i < C; ++i) {
+        for (int64_t i = 0; i < C; ++i) {
             const double *Li = L + i * c, *ri = rot + i * 3;
             for (int64_t ch = 0; ch < c; ++ch) {
                 sum[ch] += Li[ch];
@@ -619,41 +621,32 @@ PDIC_EXPORT int64_t pdic_cell_gradients(const double *L_sum, const double *rot_s
         }
         if (M > 1) { /* theta boundaries (rows j-1 | j), j >= 1 */
             double part[6 * 3];
+            for (int64_t i = 0; i < c * 3; ++i) part[i] = 0.0;
             for (int64_t k = 0; k < N; ++k) {
                 for (int64_t ch = 0; ch < c; ++ch) term[ch] = 0.0;
                 for (int64_t j = 1; j < M; ++j) {
                     int64_t at = j * N + k, below = (j - 1) * N + k;
                     double w = theta_step[j - 1] / np_min(r[at], r[below]);
-                    for (int64_t ch = 0; ch < c; ++ch) {
-                        double t = w * (L[at * c + ch] - L[below * c + ch]);
-                        term[ch] = j == 1 ? t : term[ch] + t;
-                    }
+                    for (int64_t ch = 0; ch < c; ++ch) term[ch] += w * (L[at * c + ch] - L[below * c + ch]);
                 }
                 for (int64_t ch = 0; ch < c; ++ch)
-                    for (int x = 0; x < 3; ++x) {
-                        double t = term[ch] * u[k * 3 + x];
-                        part[ch * 3 + x] = k == 0 ? t : part[ch * 3 + x] + t;
-                    }
+                    for (int x = 0; x < 3; ++x) part[ch * 3 + x] += term[ch] * u[k * 3 + x];
             }
             for (int64_t i = 0; i < c * 3; ++i) gt[i] += part[i];
         }
         if (N > 1) { /* phi boundaries (columns k-1 | k), wrapping round */
             double part[6 * 3];
+            for (int64_t i = 0; i < c * 3; ++i) part[i] = 0.0;
             for (int64_t k = 0; k < N; ++k) {
                 int64_t before = (k + N - 1) % N;
+                for (int64_t ch = 0; ch < c; ++ch) term[ch] = 0.0;
                 for (int64_t j = 0; j < M; ++j) {
                     int64_t at = j * N + k, side = j * N + before;
                     double w = phi_step[j] / np_min(r[at], r[side]);
-                    for (int64_t ch = 0; ch < c; ++ch) {
-                        double t = w * (L[at * c + ch] - L[side * c + ch]);
-                        term[ch] = j == 0 ? t : term[ch] + t;
-                    }
+                    for (int64_t ch = 0; ch < c; ++ch) term[ch] += w * (L[at * c + ch] - L[side * c + ch]);
                 }
                 for (int64_t ch = 0; ch < c; ++ch)
-                    for (int x = 0; x < 3; ++x) {
-                        double t = term[ch] * v_lo[k * 3 + x];
-                        part[ch * 3 + x] = k == 0 ? t : part[ch * 3 + x] + t;
-                    }
+                    for (int x = 0; x < 3; ++x) part[ch * 3 + x] += term[ch] * v_lo[k * 3 + x];
             }
             for (int64_t i = 0; i < c * 3; ++i) gt[i] += part[i];
         }
