@@ -568,6 +568,29 @@ PDIC_EXPORT void pdic_morton_order(const double *p, int64_t m, uint64_t *keys, u
 static inline double np_min(double a, double b) { return isnan(a) ? a : (isnan(b) ? b : (a < b ? a : b)); }
 static inline double np_max(double a, double b) { return isnan(a) ? a : (isnan(b) ? b : (a > b ? a : b)); }
 
+/* One family of cell boundaries of the translational gradient (Hemisphere.irradiance_and_gradients), added to
+ * gt (c, 3): for each column k, the sum over rows j >= first of step[j - first] / min(r, r') (L - L') against the
+ * cell `rows_back` rows and `columns_back` columns before it (round in phi), times dir[k] (3); those summed over
+ * k. Rows' boundaries: first 1, one row back, direction u; columns': first 0, one column back, v_lo. */
+static void add_boundaries(const double *L, const double *r, int64_t c, int64_t M, int64_t N, int64_t first,
+                           int64_t rows_back, int64_t columns_back, const double *step, const double *dir,
+                           double *gt) {
+    double term[6], part[6 * 3];
+    for (int64_t i = 0; i < c * 3; ++i) part[i] = 0.0;
+    for (int64_t k = 0; k < N; ++k) {
+        int64_t before = (k + N - columns_back) % N;
+        for (int64_t ch = 0; ch < c; ++ch) term[ch] = 0.0;
+        for (int64_t j = first; j < M; ++j) {
+            int64_t at = j * N + k, other = (j - rows_back) * N + before;
+            double w = step[j - first] / np_min(r[at], r[other]);
+            for (int64_t ch = 0; ch < c; ++ch) term[ch] += w * (L[at * c + ch] - L[other * c + ch]);
+        }
+        for (int64_t ch = 0; ch < c; ++ch)
+            for (int x = 0; x < 3; ++x) part[ch * 3 + x] += term[ch] * dir[k * 3 + x];
+    }
+    for (int64_t i = 0; i < c * 3; ++i) gt[i] += part[i];
+}
+
 /* core.gather_cells.CellSums.irradiance_and_gradients up to the world frame, for B records of M x N cells
  * and c <= 6 channels: each cell's mean radiance L_sum / max(count, 1) (B M N, c) and rotational axis rot_sum /
  * max(count, 1) (B M N, 3), its distance max(r_min, r_floor, 1e-300), then core.hemisphere.Hemisphere.
@@ -585,7 +608,6 @@ PDIC_EXPORT int64_t pdic_cell_gradients(const double *L_sum, const double *rot_s
     double *L = (double *)malloc(sizeof(double) * (size_t)(C * (c + 4)));
     if (!L) return -1;
     double *rot = L + C * c, *r = rot + 3 * C;
-    double term[6];
     for (int64_t b = 0; b < B; ++b) {
         const double *Ls = L_sum + b * C * c, *Rs = rot_sum + b * C * 3, *cs = count + b * C, *rm = r_min + b * C;
         for (int64_t i = 0; i < C; ++i) {
@@ -619,37 +641,8 @@ PDIC_EXPORT int64_t pdic_cell_gradients(const double *L_sum, const double *rot_s
                 gt[ch * 3 + x] = 0.0;
             }
         }
-        if (M > 1) { /* theta boundaries (rows j-1 | j), j >= 1 */
-            double part[6 * 3];
-            for (int64_t i = 0; i < c * 3; ++i) part[i] = 0.0;
-            for (int64_t k = 0; k < N; ++k) {
-                for (int64_t ch = 0; ch < c; ++ch) term[ch] = 0.0;
-                for (int64_t j = 1; j < M; ++j) {
-                    int64_t at = j * N + k, below = (j - 1) * N + k;
-                    double w = theta_step[j - 1] / np_min(r[at], r[below]);
-                    for (int64_t ch = 0; ch < c; ++ch) term[ch] += w * (L[at * c + ch] - L[below * c + ch]);
-                }
-                for (int64_t ch = 0; ch < c; ++ch)
-                    for (int x = 0; x < 3; ++x) part[ch * 3 + x] += term[ch] * u[k * 3 + x];
-            }
-            for (int64_t i = 0; i < c * 3; ++i) gt[i] += part[i];
-        }
-        if (N > 1) { /* phi boundaries (columns k-1 | k), wrapping round */
-            double part[6 * 3];
-            for (int64_t i = 0; i < c * 3; ++i) part[i] = 0.0;
-            for (int64_t k = 0; k < N; ++k) {
-                int64_t before = (k + N - 1) % N;
-                for (int64_t ch = 0; ch < c; ++ch) term[ch] = 0.0;
-                for (int64_t j = 0; j < M; ++j) {
-                    int64_t at = j * N + k, side = j * N + before;
-                    double w = phi_step[j] / np_min(r[at], r[side]);
-                    for (int64_t ch = 0; ch < c; ++ch) term[ch] += w * (L[at * c + ch] - L[side * c + ch]);
-                }
-                for (int64_t ch = 0; ch < c; ++ch)
-                    for (int x = 0; x < 3; ++x) part[ch * 3 + x] += term[ch] * v_lo[k * 3 + x];
-            }
-            for (int64_t i = 0; i < c * 3; ++i) gt[i] += part[i];
-        }
+        if (M > 1) add_boundaries(L, r, c, M, N, 1, 1, 0, theta_step, u, gt);  /* rows j-1 | j, j >= 1 */
+        if (N > 1) add_boundaries(L, r, c, M, N, 0, 0, 1, phi_step, v_lo, gt); /* columns k-1 | k, round */
     }
     free(L);
     return 0;
