@@ -279,7 +279,7 @@ HIT_GRID_SPACING = 0.5
 HIT_GRID_MAX_SIDE = 256
 """Most grid steps along a triangle's edge (65k cells per side)."""
 HIT_GRID_MAX_CELLS = 4_000_000
-"""The step widens until the whole grid holds at most this many cells (84 bytes each)."""
+"""The step widens until the whole grid holds at most this many cells (120 bytes each, core/hit_radiance.py HitGrid)."""
 HIT_GRID_CELLS_PER_HIT = 0.125
 """... and at most this many cells (both sides) per gathering hit expected (records x cells)."""
 OPEN_CELL_REACH = 0.9

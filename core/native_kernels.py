@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-VERSION = 9
+VERSION = 10
 """The C library's ``pdic_native_version()`` this module calls; a library of another version is not used."""
 NATIVE_DIR = Path(__file__).resolve().parent / "native"
 SUFFIX = {"linux": ".so", "windows": ".dll", "macos": ".dylib"}
@@ -98,8 +98,10 @@ def _declare(lib) -> None:
     lib.pdic_add_rows3.restype = None
     lib.pdic_add_rows3.argtypes = [_PTR, _I64, _PTR, _PTR, _I64, _PTR]
     lib.pdic_hit_cells.restype = None
-    lib.pdic_hit_cells.argtypes = ([_PTR] * 5 + [_I64] + [_PTR] * 3 + [_I64] + [_PTR] * 4 + [_F64, _PTR] + [_F64] * 4
-                                   + [_PTR] * 7)
+    lib.pdic_hit_cells.argtypes = ([_PTR] * 5 + [_I64] + [_PTR] * 3 + [_I64] + [_PTR] * 2 + [_I64] * 2
+                                   + [_F64, _PTR] + [_F64] * 4 + [_PTR] * 7)
+    lib.pdic_cell_bytes.restype = _I64
+    lib.pdic_cell_bytes.argtypes = []
 
 
 def _load():
@@ -303,20 +305,25 @@ def hit_cells(lib, caster, grid, triangle, barycentric, q, direction, distance, 
     """:func:`core.real_rays.hit_cells` in C over hit grid ``grid`` (``gap_tests``:
     :func:`core.real_rays.gap_tests`): the same (n_hit, E, centroid, rho, is_open, near, gap)."""
     from .constants import HIT_GRID_NEAR  # here: tools/build_native.py loads this file on its own
+    from .hit_radiance import CELL
 
     h, V = len(triangle), grid.E.shape[1]
+    cells = grid.cells
+    if cells.dtype != CELL or lib.pdic_cell_bytes() != CELL.itemsize or not cells.flags.c_contiguous or len(cells) != V:
+        raise ValueError(f"hit grid cells: {len(cells)} rows of {cells.dtype}, the kernel reads {V} rows of "
+                         f"{lib.pdic_cell_bytes()} bytes")
     tables = [_f64(caster.face_normals), _i64(grid.side), _i64(grid.offset), np.ascontiguousarray(grid.E, np.float32),
-              _f64(grid.centroid), None if grid.albedo is None else np.ascontiguousarray(grid.albedo, np.float32),
-              None if grid.open is None else np.ascontiguousarray(grid.open).view(np.uint8)]
+              cells]
     hits = [_i64(triangle), _f64(barycentric), _f64(direction), _f64(q), _f64(distance)]
     n_record, gap_reach, gap_cos, corner_reach, corner_height = gap_tests or (None, 0.0, 0.0, 0.0, 0.0)
     n_record = None if n_record is None else _f64(n_record)
     E, centroid, n_hit = np.empty((h, 3)), np.empty((h, 3)), np.empty((h, 3))
     rho = None if grid.albedo is None else np.empty((h, 3))
     flags = np.empty((3, h), np.uint8)  # open, near, gap
-    lib.pdic_hit_cells(*map(_ptr, hits), h, *map(_ptr, tables[:3]), V, *map(_ptr, tables[3:]), HIT_GRID_NEAR,
-                       _ptr(n_record), float(gap_reach), float(gap_cos), float(corner_reach), float(corner_height),
-                       _ptr(E), _ptr(centroid), _ptr(rho), _ptr(n_hit), *(_ptr(row) for row in flags))
+    lib.pdic_hit_cells(*map(_ptr, hits), h, *map(_ptr, tables[:3]), V, *map(_ptr, tables[3:]),
+                       int(grid.albedo is not None), int(grid.open is not None), HIT_GRID_NEAR, _ptr(n_record),
+                       float(gap_reach), float(gap_cos), float(corner_reach), float(corner_height), _ptr(E),
+                       _ptr(centroid), _ptr(rho), _ptr(n_hit), *(_ptr(row) for row in flags))
     is_open, near, gap = flags.view(bool)
     return n_hit, E, centroid, rho, is_open, near, gap
 

@@ -238,3 +238,41 @@ def test_a_hit_just_past_the_far_edge_reads_its_own_triangles_cell():
     _, centroid, _, _ = grid.lookup(np.array([last, last]), bary, np.zeros(2, bool))
     cells = [int(np.flatnonzero((grid.centroid == c).all(axis=1))[0]) for c in centroid]
     assert all(first <= c < first + L * L for c in cells), (cells, first, L)
+
+
+def test_a_grid_keeps_its_centroids_albedos_and_open_cells_in_one_aligned_table():
+    """One 64-byte row a cell (the kernel reads a cell's line once); the arrays a grid was given become views of
+    it, a later grid over the same cells shares it, and a grid shipped to a Dask worker arrives with one table."""
+    import pickle
+
+    from pdic.core.hit_radiance import CELL
+
+    rng = np.random.default_rng(16)
+    grid = _hit_grid(rng, T=50)
+    V = len(grid.centroid)
+    centroid, albedo, opened = grid.centroid.copy(), rng.random((V, 3), dtype=np.float32), rng.random((2, V)) < 0.5
+    grid = HitGrid(grid.side, grid.offset, grid.E, grid.E_direct, centroid, albedo, None, opened)
+    assert grid.cells.dtype == CELL and CELL.itemsize == 64 and grid.cells.ctypes.data % 64 == 0
+    assert np.array_equal(grid.centroid, centroid) and np.array_equal(grid.albedo, albedo)
+    assert np.array_equal(grid.open, opened) and grid.open.dtype == bool and grid.open.shape == (2, V)
+    for view in (grid.centroid, grid.albedo, grid.open):
+        assert np.shares_memory(view, grid.cells)
+    later = HitGrid(grid.side, grid.offset, grid.E * 2, grid.E_direct, grid.centroid, grid.albedo, None, grid.open,
+                    grid.cells)
+    assert later.cells is grid.cells
+    reopened = ~opened  # cells found open anew: a table of its own, the first grid's untouched
+    other = HitGrid(grid.side, grid.offset, grid.E, grid.E_direct, grid.centroid, grid.albedo, None, reopened,
+                    grid.cells)
+    assert other.cells is not grid.cells and np.array_equal(other.open, reopened)
+    assert np.array_equal(grid.open, opened)
+    bare = HitGrid(grid.side, grid.offset, grid.E, grid.E_direct, centroid)  # no albedo, no open cells
+    assert bare.albedo is None and bare.open is None and not bare.cells["albedo"].any()
+    shipped = pickle.loads(pickle.dumps(grid))
+    assert len(pickle.dumps(grid)) < V * (CELL.itemsize + 2 * 24) + 10_000  # the table once, no copies of its views
+    for name in ("centroid", "albedo", "open", "E"):
+        assert np.array_equal(getattr(shipped, name), getattr(grid, name)), name
+    assert np.shares_memory(shipped.centroid, shipped.cells) and np.shares_memory(shipped.open, shipped.cells)
+    triangle = rng.integers(0, len(grid.side), 500)
+    bary, back = rng.random((500, 2)) * 0.5, rng.random(500) < 0.5
+    for a, b in zip(grid.lookup(triangle, bary, back), shipped.lookup(triangle, bary, back)):
+        assert np.array_equal(a, b)

@@ -240,6 +240,16 @@ def test_hit_cells_equal_numpy(albedo, open_cells, corner, gap):
     assert np.array_equal(E, grid.E[back.astype(int), cell].astype(np.float64))
 
 
+def test_hit_cells_refuse_a_cell_table_the_kernel_would_misread():
+    rng = np.random.default_rng(21)
+    caster, sources, hits = native_kernels._grid_hits(rng, 50, 100)
+    grid = sources.hit_grid
+    for bad in (np.zeros(len(grid.cells), [("centroid", "<f8", (3,))]), grid.cells[:-1], grid.cells[::2]):
+        object.__setattr__(grid, "cells", bad)
+        with pytest.raises(ValueError, match="hit grid cells"):
+            native_kernels.hit_cells(LIB, caster, grid, *hits[:-1], real_rays.gap_tests(sources, hits[-1]))
+
+
 @pytest.mark.filterwarnings("error")  # numpy's keys of NaN or infinite points warn no one
 @pytest.mark.parametrize("case", ["scattered", "flat", "nan", "inf", "inf_column", "one", "repeated"])
 def test_morton_keys_and_order_equal_numpy(case):

@@ -27,7 +27,7 @@
 #define PDIC_FOUR_PI 12.566370614359172
 
 /* Bumped whenever a signature changes: core/native_kernels.py refuses a library of another version. */
-PDIC_EXPORT int64_t pdic_native_version(void) { return 9; }
+PDIC_EXPORT int64_t pdic_native_version(void) { return 10; }
 
 /* core.zone_grid.ZoneGrid.pairs: every (point, record) with |q - p_k|^2 <= zone_k^2, points in order,
  * each point's cell entries in order. Dense cell table: first (n_cells + 1), else the sorted occupied
@@ -335,8 +335,9 @@ static inline double clip01(double v) { return v < 0.0 ? 0.0 : (v > 1.0 ? 1.0 : 
 
 /* Hits whose cells pdic_hit_cells finds before it reads any, and how far ahead it asks for a cell's
  * memory: the grid's tables (Sponza 16/m: 2.3 M cells, 190 MB) are read at random, and a hit waited
- * for each of its four cache misses in turn (Sponza 16/m Final: 163 ns a hit, 113 asking 32 hits ahead;
- * 155-175 and 73-82 ns on one thread alone, no other thread sharing the memory bus). */
+ * for each of its cache misses in turn (Sponza 16/m Final: 163 ns a hit, 113 asking 32 hits ahead;
+ * 155-175 and 73-82 ns on one thread alone, no other thread sharing the memory bus). Two misses a hit
+ * since a cell's centroid, albedo and openness share a line (PdicCell): 75-80 -> 40-47 ns in a bake. */
 #define PDIC_HIT_BLOCK 1024
 #define PDIC_HIT_AHEAD 32
 
@@ -355,58 +356,62 @@ static inline int64_t grid_cell(const double *b, const double *f, const double *
     return first + j * (2 * L - j) + 2 * i + upper;
 }
 
-static inline void prefetch_cell(int64_t cell, int64_t at, const float *E, const double *centroid,
-                                 const float *albedo, const uint8_t *open) {
-    PDIC_PREFETCH(E + 3 * at);
-    PDIC_PREFETCH(centroid + 3 * cell);
-    if (albedo) PDIC_PREFETCH(albedo + 3 * cell);
-    if (open) PDIC_PREFETCH(open + at);
-}
+/* A row of core.hit_radiance.HitGrid.cells (its dtype CELL): a cell's centroid, mean albedo and openness on the
+ * side the face normal points to [0] and the other [1], one 64-byte cache line. */
+typedef struct {
+    double centroid[3];
+    float albedo[3];
+    uint8_t open[2];
+    uint8_t unused[26];
+} PdicCell;
 
 /* core.real_rays.hit_cells: for gathering hits on triangles (h,) at Embree barycentrics (h, 2), met by
  * rays `direction` (h, 3) at q (h, 3), `distance` (h,) from their record: the side met (real_rays.side_met:
- * back, n_hit), the hit grid's cell there (core.hit_radiance.HitGrid.lookup: E (2, V, 3) float32 per side,
- * centroid (V, 3), albedo (V, 3) float32 or NULL, open (2, V) or NULL), whether the hit is near its cell's
- * centroid (real_rays._near_cell) and, given the hits' record normals n_record (h, 3), whether it lies in a
- * gap (gap-gathering; corner-gathering when corner_reach > 0), as real_rays.radiance_at_hits tests.
+ * back, n_hit), the hit grid's cell there (core.hit_radiance.HitGrid.lookup: E (2, V, 3) float32 per side and
+ * the cells' table `cells` (V,), whose albedo and openness count where has_albedo and has_open), whether the hit
+ * is near its cell's centroid (real_rays._near_cell) and, given the hits' record normals n_record (h, 3), whether
+ * it lies in a gap (gap-gathering; corner-gathering when corner_reach > 0), as real_rays.radiance_at_hits tests.
  * Finite barycentrics only. Outputs (h, 3) float64: E_out, centroid_out, rho_out (with albedo), n_out;
  * (h,) uint8: open_out, near_out, gap_out. */
 PDIC_EXPORT void pdic_hit_cells(const int64_t *triangle, const double *barycentric, const double *direction,
                                 const double *q, const double *distance, int64_t h, const double *face_normals,
                                 const int64_t *side, const int64_t *offset, int64_t V, const float *E,
-                                const double *centroid, const float *albedo, const uint8_t *open,
-                                double near_factor, const double *n_record, double gap_reach, double gap_cos,
-                                double corner_reach, double corner_height, double *E_out,
-                                double *centroid_out, double *rho_out, double *n_out, uint8_t *open_out,
-                                uint8_t *near_out, uint8_t *gap_out) {
-    int64_t cells[PDIC_HIT_BLOCK];
+                                const PdicCell *cells, int64_t has_albedo, int64_t has_open, double near_factor,
+                                const double *n_record, double gap_reach, double gap_cos, double corner_reach,
+                                double corner_height, double *E_out, double *centroid_out, double *rho_out,
+                                double *n_out, uint8_t *open_out, uint8_t *near_out, uint8_t *gap_out) {
+    int64_t found[PDIC_HIT_BLOCK];
     uint8_t backs[PDIC_HIT_BLOCK];
     for (int64_t begin = 0; begin < h; begin += PDIC_HIT_BLOCK) {
         int64_t n = h - begin < PDIC_HIT_BLOCK ? h - begin : PDIC_HIT_BLOCK;
         for (int64_t b = 0; b < n; ++b) {
             int64_t k = begin + b, t = triangle[k];
-            cells[b] = grid_cell(barycentric + 2 * k, face_normals + 3 * t, direction + 3 * k, side[t], offset[t],
+            found[b] = grid_cell(barycentric + 2 * k, face_normals + 3 * t, direction + 3 * k, side[t], offset[t],
                                  backs + b);
-            if (b < PDIC_HIT_AHEAD) prefetch_cell(cells[b], backs[b] * V + cells[b], E, centroid, albedo, open);
+            if (b < PDIC_HIT_AHEAD) {
+                PDIC_PREFETCH(E + 3 * (backs[b] * V + found[b]));
+                PDIC_PREFETCH(cells + found[b]);
+            }
         }
         for (int64_t b = 0; b < n; ++b) {
             if (b + PDIC_HIT_AHEAD < n) {
                 int64_t later = b + PDIC_HIT_AHEAD;
-                prefetch_cell(cells[later], backs[later] * V + cells[later], E, centroid, albedo, open);
+                PDIC_PREFETCH(E + 3 * (backs[later] * V + found[later]));
+                PDIC_PREFETCH(cells + found[later]);
             }
             int64_t k = begin + b, t = triangle[k];
             const double *f = face_normals + 3 * t, *d = direction + 3 * k;
-            int64_t back = backs[b], cell = cells[b], at = back * V + cell;
+            int64_t back = backs[b], at = back * V + found[b];
+            const PdicCell *cell = cells + found[b];
             double nh[3];
             for (int c = 0; c < 3; ++c) nh[c] = back ? -f[c] : f[c];
-            const double *cen = centroid + 3 * cell;
             double o[3];
             for (int c = 0; c < 3; ++c) {
                 E_out[3 * k + c] = (double)E[3 * at + c];
-                centroid_out[3 * k + c] = cen[c];
+                centroid_out[3 * k + c] = cell->centroid[c];
                 n_out[3 * k + c] = nh[c];
-                if (albedo) rho_out[3 * k + c] = (double)albedo[3 * cell + c];
-                o[c] = q[3 * k + c] - cen[c];
+                if (has_albedo) rho_out[3 * k + c] = (double)cell->albedo[c];
+                o[c] = q[3 * k + c] - cell->centroid[c];
             }
             double reach = near_factor * distance[k];
             int near = (o[0] * o[0] + o[1] * o[1] + o[2] * o[2]) > reach * reach;
@@ -419,12 +424,15 @@ PDIC_EXPORT void pdic_hit_cells(const int64_t *triangle, const double *barycentr
                     gap = gap || ((distance[k] < corner_reach) && (height < corner_height));
                 }
             }
-            open_out[k] = open ? open[at] : 0;
+            open_out[k] = has_open ? (uint8_t)(cell->open[back] != 0) : 0;
             near_out[k] = (uint8_t)near;
             gap_out[k] = (uint8_t)gap;
         }
     }
 }
+
+/* sizeof(PdicCell), which core/native_kernels.py compares with HitGrid's row before it passes a table. */
+PDIC_EXPORT int64_t pdic_cell_bytes(void) { return (int64_t)sizeof(PdicCell); }
 
 /* The far end of a sector polygon's side past a ray that met nothing (record_walls._Sector.beyond): the ray's
  * wall t, else `far`, shortened by the wall margin, kept off zero. */
