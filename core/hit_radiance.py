@@ -51,12 +51,13 @@ class HitGrid:
         which a later grid over the same cells reuses; open : (2, V) bool, on each side, whether the
         cell's centroid sees the cell's three corners (each pulled OPEN_CELL_REACH of the way in), or
         None (deviation: open-cells).
-    cells : (V,) :data:`CELL` the centroids, albedos and openness in one table, 64-byte aligned;
-        ``centroid``, ``albedo`` and ``open`` are views of it. Hits read their cells at random (Sponza
+    cells : (V,) :data:`CELL` the centroids, albedos and openness in one table, 64-byte aligned (copied to
+        a boundary when unpickled); ``centroid``, ``albedo`` and ``open`` are views of it. Hits read their cells at random (Sponza
         16/m: 107 M hits over 2.35 M cells), and one cache line a cell instead of three halves that read
         (:func:`core.native_kernels.hit_cells`: 8.0-8.6 -> 4.3-5.0 CPU s a bake). Given (a later grid
         over the same cells), it is used as it is where the three arrays are its views, else built anew.
-    Memory: 120 bytes per cell; V <= HIT_GRID_MAX_CELLS.
+    Memory: 120 bytes per cell once built (a later grid sharing the table and E_direct: 32 more), and the three
+    arrays given beside the table while it is built; V <= HIT_GRID_MAX_CELLS.
     """
 
     side: np.ndarray
@@ -92,7 +93,7 @@ class HitGrid:
         for name, value in state.items():
             if name not in ("centroid", "albedo", "open"):
                 object.__setattr__(self, name, value)
-        self._share(state["cells"], state["albedo"], state["open"])
+        self._share(aligned_cells(state["cells"]), state["albedo"], state["open"])
 
     def lookup(self, triangle: np.ndarray, barycentric: np.ndarray, back: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
@@ -120,18 +121,33 @@ class HitGrid:
 def cell_table(centroid: np.ndarray, albedo: np.ndarray | None, open_: np.ndarray | None) -> np.ndarray:
     """(V,) :data:`CELL` rows of centroids (V, 3), albedos (V, 3) (zero where None) and openness (2, V) (False where
     None), starting on a 64-byte boundary so that each row is one cache line."""
-    V = len(centroid)
-    # np.empty, then zeros: numpy asks Linux for huge pages for large empty arrays, not for zeroed ones (calloc).
-    buffer = np.empty(V * CELL.itemsize + 64, np.uint8)
-    buffer[:] = 0
-    start = (-buffer.ctypes.data) % 64
-    table = buffer[start:start + V * CELL.itemsize].view(CELL)
+    table = _empty_cells(len(centroid))
     table["centroid"] = centroid
     if albedo is not None:
         table["albedo"] = albedo
     if open_ is not None:
         table["open"] = np.asarray(open_).T
     return table
+
+
+def aligned_cells(cells: np.ndarray) -> np.ndarray:
+    """``cells`` if its rows start on 64-byte boundaries, else a copy that does (an unpickled table lies where
+    the allocator put it: the kernel would read two lines a row, and doubles off their alignment)."""
+    if cells.ctypes.data % 64 == 0 and cells.flags.c_contiguous:
+        return cells
+    table = _empty_cells(len(cells))
+    table[...] = cells
+    return table
+
+
+def _empty_cells(V: int) -> np.ndarray:
+    """(V,) :data:`CELL` rows of zeros (the padding too, so that a table's bytes depend on its cells alone: Dask
+    keys arrays by content), the first on a 64-byte boundary."""
+    # np.empty, then zeros: numpy asks Linux for huge pages for large empty arrays, not for zeroed ones (calloc).
+    buffer = np.empty(V * CELL.itemsize + 64, np.uint8)
+    buffer[:] = 0
+    start = (-buffer.ctypes.data) % 64
+    return buffer[start:start + V * CELL.itemsize].view(CELL)
 
 
 def _views_of(cells: np.ndarray, centroid: np.ndarray, albedo: np.ndarray | None, open_: np.ndarray | None) -> bool:

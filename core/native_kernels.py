@@ -309,9 +309,15 @@ def hit_cells(lib, caster, grid, triangle, barycentric, q, direction, distance, 
 
     h, V = len(triangle), grid.E.shape[1]
     cells = grid.cells
-    if cells.dtype != CELL or lib.pdic_cell_bytes() != CELL.itemsize or not cells.flags.c_contiguous or len(cells) != V:
-        raise ValueError(f"hit grid cells: {len(cells)} rows of {cells.dtype}, the kernel reads {V} rows of "
-                         f"{lib.pdic_cell_bytes()} bytes")
+    wrong = [why for why, bad in (
+        (f"of dtype {cells.dtype}, not core.hit_radiance.CELL", cells.dtype != CELL),
+        (f"rows of {CELL.itemsize} bytes where the kernel reads {lib.pdic_cell_bytes()}",
+         lib.pdic_cell_bytes() != CELL.itemsize),
+        ("not contiguous", not cells.flags.c_contiguous),
+        ("not on an 8-byte boundary", cells.ctypes.data % 8 != 0),
+        (f"{len(cells)} rows for {V} cells", len(cells) != V)) if bad]
+    if wrong:
+        raise ValueError("hit grid cells " + ", ".join(wrong))
     tables = [_f64(caster.face_normals), _i64(grid.side), _i64(grid.offset), np.ascontiguousarray(grid.E, np.float32),
               cells]
     hits = [_i64(triangle), _f64(barycentric), _f64(direction), _f64(q), _f64(distance)]

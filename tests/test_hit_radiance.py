@@ -272,6 +272,7 @@ def test_a_grid_keeps_its_centroids_albedos_and_open_cells_in_one_aligned_table(
     for name in ("centroid", "albedo", "open", "E"):
         assert np.array_equal(getattr(shipped, name), getattr(grid, name)), name
     assert np.shares_memory(shipped.centroid, shipped.cells) and np.shares_memory(shipped.open, shipped.cells)
+    assert shipped.cells.ctypes.data % 64 == 0  # wherever the unpickler put the table
     triangle = rng.integers(0, len(grid.side), 500)
     bary, back = rng.random((500, 2)) * 0.5, rng.random(500) < 0.5
     for a, b in zip(grid.lookup(triangle, bary, back), shipped.lookup(triangle, bary, back)):

@@ -244,9 +244,13 @@ def test_hit_cells_refuse_a_cell_table_the_kernel_would_misread():
     rng = np.random.default_rng(21)
     caster, sources, hits = native_kernels._grid_hits(rng, 50, 100)
     grid = sources.hit_grid
-    for bad in (np.zeros(len(grid.cells), [("centroid", "<f8", (3,))]), grid.cells[:-1], grid.cells[::2]):
+    V = len(grid.cells)
+    twice = np.concatenate([grid.cells, grid.cells])
+    unaligned = np.zeros(V * 64 + 1, np.uint8)[1:].view(grid.cells.dtype)
+    for bad, why in ((np.zeros(V, [("centroid", "<f8", (3,))]), "dtype"), (grid.cells[:-1], f"{V - 1} rows"),
+                     (twice[::2], "not contiguous"), (unaligned, "8-byte boundary")):
         object.__setattr__(grid, "cells", bad)
-        with pytest.raises(ValueError, match="hit grid cells"):
+        with pytest.raises(ValueError, match=f"hit grid cells.*{why}"):
             native_kernels.hit_cells(LIB, caster, grid, *hits[:-1], real_rays.gap_tests(sources, hits[-1]))
 
 

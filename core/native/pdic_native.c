@@ -334,7 +334,7 @@ static inline double clip01(double v) { return v < 0.0 ? 0.0 : (v > 1.0 ? 1.0 : 
 #endif
 
 /* Hits whose cells pdic_hit_cells finds before it reads any, and how far ahead it asks for a cell's
- * memory: the grid's tables (Sponza 16/m: 2.3 M cells, 190 MB) are read at random, and a hit waited
+ * memory: the grid's E and cell tables (Sponza 16/m: 2.35 M cells, 207 MB) are read at random, and a hit waited
  * for each of its cache misses in turn (Sponza 16/m Final: 163 ns a hit, 113 asking 32 hits ahead;
  * 155-175 and 73-82 ns on one thread alone, no other thread sharing the memory bus). Two misses a hit
  * since a cell's centroid, albedo and openness share a line (PdicCell): 75-80 -> 40-47 ns in a bake. */
