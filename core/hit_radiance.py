@@ -52,10 +52,11 @@ class HitGrid:
         cell's centroid sees the cell's three corners (each pulled OPEN_CELL_REACH of the way in), or
         None (deviation: open-cells).
     cells : (V,) :data:`CELL` the centroids, albedos and openness in one table, 64-byte aligned (copied to
-        a boundary when unpickled); ``centroid``, ``albedo`` and ``open`` are views of it. Hits read their cells at random (Sponza
-        16/m: 107 M hits over 2.35 M cells), and one cache line a cell instead of three halves that read
-        (:func:`core.native_kernels.hit_cells`: 8.0-8.6 -> 4.3-5.0 CPU s a bake). Given (a later grid
-        over the same cells), it is used as it is where the three arrays are its views, else built anew.
+        a boundary when unpickled); ``centroid``, ``albedo`` and ``open`` are views of it. Hits read their
+        cells at random (Sponza 16/m: 107 M hits over 2.35 M cells); one cache line a cell instead of three
+        halves that read (:func:`core.native_kernels.hit_cells`: 8.0-8.6 -> 4.3-5.0 CPU s a bake). Given (a
+        later grid over the same cells), it is used as it is where the three arrays are its views, else
+        built anew.
     Memory: 120 bytes per cell once built (a later grid sharing the table and E_direct: 32 more), and the three
     arrays given beside the table while it is built; V <= HIT_GRID_MAX_CELLS.
     """

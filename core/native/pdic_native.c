@@ -431,7 +431,7 @@ PDIC_EXPORT void pdic_hit_cells(const int64_t *triangle, const double *barycentr
     }
 }
 
-/* sizeof(PdicCell), which core/native_kernels.py compares with HitGrid's row before it passes a table. */
+/* sizeof(PdicCell), which core/native_kernels.py compares with HitGrid's row when it loads the library. */
 PDIC_EXPORT int64_t pdic_cell_bytes(void) { return (int64_t)sizeof(PdicCell); }
 
 /* The far end of a sector polygon's side past a ray that met nothing (record_walls._Sector.beyond): the ray's
