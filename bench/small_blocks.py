@@ -28,6 +28,11 @@ which says whose value it is:
   PDIC's and the path tracer's do not (bench/coincident.py);
 - *tracer with PDIC*: the path tracer over Cycles' own footprint is nearer PDIC's value than Cycles';
 - *PDIC's own*: it is nearer Cycles'.
+
+Given two seeds or more, the blocks are judged once more on PDIC's mean over the seeds (over the texels every
+seed bakes), which halves PDIC's own noise at four seeds, and each block's spread over the seeds is reported:
+a block off in one seed whose mean over the seeds is within 20 % is *PDIC's noise*. The mean's blocks still off
+are traced and sorted as above.
 """
 from __future__ import annotations
 
@@ -43,7 +48,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 from bench import run as bench_run  # noqa: E402  (loads pdic and bpy)
 
-from pdic.bench.competitors import BLOCK, BLOCK_OFF, block_counts, block_differences  # noqa: E402
+from pdic.bench.competitors import BLOCK, BLOCK_OFF, block_counts, block_differences, block_means  # noqa: E402
 
 SMALL = 16
 """A block holding fewer judged texels than this (of 64) is small: it lies at a chart's edge."""
@@ -176,7 +181,6 @@ def main(argv=None):
     ap.add_argument("--paths", type=int, default=1024, help="path-traced paths per footprint point")
     args = ap.parse_args(argv)
     from bench import convergence
-    from bench.referee_competitors import traced_blocks
     from pdic.core.pipeline import bake
     from pdic.core.settings import preset
     from pdic.core.texels import lift_texels
@@ -200,9 +204,13 @@ def main(argv=None):
     else:
         converged, noise = restricted_pair(args.scene, blocks, args.spp, path)
     print(f"{label}: restricted pair {args.spp} spp x 2, noise {noise:.1%} per texel", flush=True)
-    for seed in (int(s) for s in args.seeds.split(",")):
+    seeds = [int(s) for s in args.seeds.split(",")]
+    maps, masks, offs = [], [], []
+    for seed in seeds:
         result = bake(scene, replace(preset("FINAL"), seed=seed))
         mask = held & result.centre_inside[name] & ~result.buried[name]
+        maps.append(result.indirect[name])
+        masks.append(mask)
         fill = block_counts(mask)
         small_judged = (fill > 0) & (fill < SMALL)
         fine = judged_blocks(result.indirect[name], mask, converged, small_judged)
@@ -213,24 +221,63 @@ def main(argv=None):
             held_off = (f" (from the held pair {int((judged & (coarse['rel'] > BLOCK_OFF)).sum())}, whose own seeds "
                         f"are {BLOCK_OFF:.0%} apart at {int((judged & (coarse['seeds'] > BLOCK_OFF)).sum())})")
         off = [tuple(b) for b in np.argwhere(judged & (fine["rel"] > BLOCK_OFF))]
+        offs.append(off)
         print(f"seed {seed}: {int(judged.sum())} small blocks judged; PDIC off by more than {BLOCK_OFF:.0%} from the "
               f"{args.spp}-spp pair at {len(off)}{held_off}; the {args.spp}-spp pair's seeds are that far apart at "
               f"{int((judged & (fine['seeds'] > BLOCK_OFF)).sum())}", flush=True)
-        if not off:
-            continue
-        traced, traced_se, black = traced_blocks(scene, "indirect", mask, np.array(off), args.paths, REFEREE_POINTS,
-                                                 seed + 13)
-        counts: dict = {}
-        for (by, bx), truth, se, dark in zip(off, traced.mean(axis=1), traced_se, black):
-            block = (slice(by * BLOCK, (by + 1) * BLOCK), slice(bx * BLOCK, (bx + 1) * BLOCK))
-            coincident = int((mask[block] & ~comparable[block]).sum())
-            why = verdict(fine["pdic"][by, bx], fine["ref"][by, bx], truth, fine["seeds"][by, bx], dark, coincident)
-            counts[why] = counts.get(why, 0) + 1
-            print(f"  {by:4d} {bx:4d} {fill[by, bx]:2d} texels  PDIC {fine['pdic'][by, bx]:.4f}  Cycles "
-                  f"{fine['ref'][by, bx]:.4f} (seeds {fine['seeds'][by, bx]:.0%} apart)  traced {truth:.4f} +- "
-                  f"{se:.4f}, {dark} footprint points black: {why}", flush=True)
-        if counts:
-            print("  " + ", ".join(f"{why} {n}" for why, n in sorted(counts.items())), flush=True)
+        sort_off_blocks(scene, off, fine, fill, mask, comparable, args.paths, seed + 13)
+    if len(seeds) > 1:
+        over_seeds(scene, maps, masks, offs, converged, comparable, args.paths, seeds[0] + 17)
+
+
+def sort_off_blocks(scene, off: list, fine: dict, fill: np.ndarray, mask: np.ndarray, comparable: np.ndarray,
+                    paths: int, seed: int) -> None:
+    """Trace the blocks ``off`` [(by, bx), ...] of a judgement ``fine`` (:func:`judged_blocks`) over the texels of
+    ``mask`` and print whose value each holds (:func:`verdict`), then the count of each verdict."""
+    from bench.referee_competitors import traced_blocks
+
+    if not off:
+        return
+    traced, traced_se, black = traced_blocks(scene, "indirect", mask, np.array(off), paths, REFEREE_POINTS, seed)
+    counts: dict = {}
+    for (by, bx), truth, se, dark in zip(off, traced.mean(axis=1), traced_se, black):
+        block = (slice(by * BLOCK, (by + 1) * BLOCK), slice(bx * BLOCK, (bx + 1) * BLOCK))
+        coincident = int((mask[block] & ~comparable[block]).sum())
+        why = verdict(fine["pdic"][by, bx], fine["ref"][by, bx], truth, fine["seeds"][by, bx], dark, coincident)
+        counts[why] = counts.get(why, 0) + 1
+        print(f"  {by:4d} {bx:4d} {fill[by, bx]:2d} texels  PDIC {fine['pdic'][by, bx]:.4f}  Cycles "
+              f"{fine['ref'][by, bx]:.4f} (seeds {fine['seeds'][by, bx]:.0%} apart)  traced {truth:.4f} +- "
+              f"{se:.4f}, {dark} footprint points black: {why}", flush=True)
+    print("  " + ", ".join(f"{why} {n}" for why, n in sorted(counts.items())), flush=True)
+
+
+def seed_spread(maps: list, mask: np.ndarray) -> np.ndarray:
+    """(H/8, W/8) the relative standard deviation over the seeds of PDIC's block mean luminance over ``mask``'s
+    texels, one map (H, W, 3) per seed in ``maps``: its own noise on each block."""
+    lum = np.stack([block_means(m, mask)[0].mean(axis=2) for m in maps])
+    return lum.std(axis=0, ddof=1) / np.maximum(lum.mean(axis=0), 1e-30)
+
+
+def over_seeds(scene, maps: list, masks: list, offs: list, converged: list, comparable: np.ndarray, paths: int,
+               seed: int) -> None:
+    """Judge the small blocks on PDIC's mean over the seeds (``maps``, ``masks`` and each seed's blocks ``offs``
+    as the seeds' bakes left them), over the texels every seed bakes; print PDIC's spread over the seeds, how
+    many of each seed's blocks off are its noise (their mean within BLOCK_OFF), and sort the mean's blocks
+    still off (:func:`sort_off_blocks`)."""
+    mask = np.logical_and.reduce(masks)
+    fill = block_counts(mask)
+    small = (fill > 0) & (fill < SMALL)
+    fine = judged_blocks(np.mean(maps, axis=0), mask, converged, small)
+    judged = fine["judged"]
+    spread = seed_spread(maps, mask)[judged]
+    mean_off = judged & (fine["rel"] > BLOCK_OFF)
+    noise = [sum(1 for b in off if not mean_off[b]) for off in offs]
+    print(f"mean of seeds {len(maps)}: {int(judged.sum())} small blocks judged; PDIC's own spread over the seeds "
+          f"{np.median(spread):.1%} median, {np.percentile(spread, 90):.1%} at the 90th percentile, "
+          f"{np.percentile(spread, 99):.1%} at the 99th, {spread.max():.1%} at most; of each seed's blocks off, "
+          f"PDIC's noise (the mean within {BLOCK_OFF:.0%}): {' / '.join(map(str, noise))}; the mean off at "
+          f"{int(mean_off.sum())}", flush=True)
+    sort_off_blocks(scene, [tuple(b) for b in np.argwhere(mean_off)], fine, fill, mask, comparable, paths, seed)
 
 
 if __name__ == "__main__":

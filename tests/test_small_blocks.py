@@ -24,6 +24,19 @@ def _lit_floor_with_a_box(bpy):
     return floor
 
 
+def test_seed_spread_is_the_relative_deviation_of_each_blocks_mean_over_the_masked_texels():
+    """Two seeds' 16 x 8 maps, blocks (0, 0) and (0, 1): the left block's masked texels read 1 and 3 (spread
+    std / mean = sqrt(2) / 2), the right block's 2 and 2 whatever its unmasked texels read (spread 0)."""
+    mask = np.zeros((8, 16), bool)
+    mask[2:4, 1:3] = True
+    mask[5, 12] = True
+    a, b = np.full((8, 16, 3), 2.0, np.float32), np.full((8, 16, 3), 2.0, np.float32)
+    a[:, :8], b[:, :8] = 1.0, 3.0
+    b[0, 8:] = 50.0  # outside the mask
+    spread = small_blocks.seed_spread([a, b], mask)
+    np.testing.assert_allclose(spread[0], [np.sqrt(2.0) / 2.0, 0.0], rtol=1e-6)
+
+
 def test_polygons_touching_blocks_are_those_whose_uv_box_reaches_them():
     """Two unit-square quads in a 32^2 map: (1-3, 1-3) texels reaches block (0, 0) only, (20-22, 9-11)
     texels block (1, 2); a box one texel wider, (20-22, 7-9) texels, reaches row 0 of blocks too."""
