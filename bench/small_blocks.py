@@ -262,8 +262,8 @@ def over_seeds(scene, maps: list, masks: list, offs: list, converged: list, comp
                seed: int) -> None:
     """Judge the small blocks on PDIC's mean over the seeds (``maps``, ``masks`` and each seed's blocks ``offs``
     as the seeds' bakes left them), over the texels every seed bakes; print PDIC's spread over the seeds, how
-    many of each seed's blocks off are its noise (their mean within BLOCK_OFF), and sort the mean's blocks
-    still off (:func:`sort_off_blocks`)."""
+    many of each seed's blocks off are its noise (judged on the mean and within BLOCK_OFF there), and sort the
+    mean's blocks still off (:func:`sort_off_blocks`)."""
     mask = np.logical_and.reduce(masks)
     fill = block_counts(mask)
     small = (fill > 0) & (fill < SMALL)
@@ -271,8 +271,8 @@ def over_seeds(scene, maps: list, masks: list, offs: list, converged: list, comp
     judged = fine["judged"]
     spread = seed_spread(maps, mask)[judged]
     mean_off = judged & (fine["rel"] > BLOCK_OFF)
-    noise = [sum(1 for b in off if not mean_off[b]) for off in offs]
-    print(f"mean of seeds {len(maps)}: {int(judged.sum())} small blocks judged; PDIC's own spread over the seeds "
+    noise = [sum(1 for b in off if judged[b] and not mean_off[b]) for off in offs]
+    print(f"the mean of {len(maps)} seeds: {int(judged.sum())} small blocks judged; PDIC's own spread over the seeds "
           f"{np.median(spread):.1%} median, {np.percentile(spread, 90):.1%} at the 90th percentile, "
           f"{np.percentile(spread, 99):.1%} at the 99th, {spread.max():.1%} at most; of each seed's blocks off, "
           f"PDIC's noise (the mean within {BLOCK_OFF:.0%}): {' / '.join(map(str, noise))}; the mean off at "
