@@ -365,6 +365,12 @@ typedef struct {
     uint8_t unused[26];
 } PdicCell;
 
+/* Ask for the two lines a hit reads: its cell's E on the side met, and the cell's row. */
+static inline void prefetch_cell(const float *E, const PdicCell *cells, int64_t V, int64_t back, int64_t cell) {
+    PDIC_PREFETCH(E + 3 * (back * V + cell));
+    PDIC_PREFETCH(cells + cell);
+}
+
 /* core.real_rays.hit_cells: for gathering hits on triangles (h,) at Embree barycentrics (h, 2), met by
  * rays `direction` (h, 3) at q (h, 3), `distance` (h,) from their record: the side met (real_rays.side_met:
  * back, n_hit), the hit grid's cell there (core.hit_radiance.HitGrid.lookup: E (2, V, 3) float32 per side and
@@ -388,17 +394,11 @@ PDIC_EXPORT void pdic_hit_cells(const int64_t *triangle, const double *barycentr
             int64_t k = begin + b, t = triangle[k];
             found[b] = grid_cell(barycentric + 2 * k, face_normals + 3 * t, direction + 3 * k, side[t], offset[t],
                                  backs + b);
-            if (b < PDIC_HIT_AHEAD) {
-                PDIC_PREFETCH(E + 3 * (backs[b] * V + found[b]));
-                PDIC_PREFETCH(cells + found[b]);
-            }
+            if (b < PDIC_HIT_AHEAD) prefetch_cell(E, cells, V, backs[b], found[b]);
         }
         for (int64_t b = 0; b < n; ++b) {
-            if (b + PDIC_HIT_AHEAD < n) {
-                int64_t later = b + PDIC_HIT_AHEAD;
-                PDIC_PREFETCH(E + 3 * (backs[later] * V + found[later]));
-                PDIC_PREFETCH(cells + found[later]);
-            }
+            int64_t later = b + PDIC_HIT_AHEAD;
+            if (later < n) prefetch_cell(E, cells, V, backs[later], found[later]);
             int64_t k = begin + b, t = triangle[k];
             const double *f = face_normals + 3 * t, *d = direction + 3 * k;
             int64_t back = backs[b], at = back * V + found[b];
