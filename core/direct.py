@@ -85,7 +85,7 @@ class DirectResult:
 
 def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, normals: np.ndarray,
                       geo_normals: np.ndarray, samples: int, rng: np.random.Generator,
-                      edge_rng: np.random.Generator | None = None) -> DirectResult:
+                      edge_rng: np.random.Generator | None = None, emitters: tuple | None = None) -> DirectResult:
     """Irradiance from every light, emissive triangle and the world at ``points``.
 
     Parameters
@@ -100,6 +100,7 @@ def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, norma
         without angle use one ray. Typical 16 (``BakeSettings.direct_samples``).
     rng : random stream for this chunk.
     edge_rng : with it, also the edge evidence (:func:`edge_evidence`), its probes drawn from it.
+    emitters : the emitters to sum (default every one of ``scene.emitters()``).
 
     Returns
     -------
@@ -120,7 +121,7 @@ def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, norma
     out = DirectResult(np.zeros((n, 3)), np.zeros((n, 3)) if edges else None, np.zeros((n, 3)) if edges else None)
     if n == 0:
         return out
-    for emitter in scene.emitters():
+    for emitter in scene.emitters() if emitters is None else emitters:
         if edge_rng is None and getattr(emitter, "hard", False):  # a point light of radius 0
             _trace_hard(out, caster, p, n_s, n_g, emitter)
             continue

@@ -21,7 +21,7 @@ from . import native_kernels
 from .albedo import albedo as albedo_at
 from .constants import (CORNER_HEIGHT, CORNER_REACH, GAP_COS, GAP_WALK_BOUNCES, GAP_WALK_SURVIVAL, HIT_GRID_NEAR,
                         TRANSPARENT_MAX_LAYERS)
-from .direct import direct_irradiance
+from .light_selection import gathering_direct
 from .gather_cells import CellSums
 from .photon_fallback import NOT_ASKED, NearestPhotons, lent_irradiance, nearest_photon_seen
 from .rays import offset_origins
@@ -332,7 +332,7 @@ def gap_irradiance(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng
     own[on_grid] = False
     rows, y, n_y, beta_y, leaves = rows[own], y[own], n_y[own], beta_y[own], leaves[own]
     p, n = np.concatenate([q, y]), np.concatenate([n_hit, n_y])
-    direct = direct_irradiance(scene, caster, p, n, n, 1, rng)
+    direct = gathering_direct(scene, caster, p, n, rng, sources.deviations.light_selection)
     rays += sum(direct.shadow_rays.values())
     E += direct.E[:len(q)]
     np.add.at(E, rows, beta_y * direct.E[len(q):])
@@ -388,7 +388,7 @@ def _irradiance_at_hits(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray
                         ) -> tuple[np.ndarray, int]:
     """(E_direct + E_indirect (h, 3), rays spent) at hits q facing n_hit (h, 3), each on its own."""
     E_indirect, seen_rays = _indirect_seen(caster, sources, q, n_hit)
-    direct = direct_irradiance(scene, caster, q, n_hit, n_hit, 1, rng)
+    direct = gathering_direct(scene, caster, q, n_hit, rng, sources.deviations.light_selection)
     return direct.E + E_indirect, sum(direct.shadow_rays.values()) + seen_rays
 
 

@@ -74,6 +74,10 @@ class Deviations:
     """Pass 3 (with gap_gathering): a hit within a R_min of its record and near the record's tangent plane
     (the foot of a wall rising from the record's surface) gathers by the gap walk too, facing the record
     or not."""
+    light_selection: bool = True
+    """Pass 3, in scenes of SELECTION_LAMPS point and spot lights or more: a gathering hit shaded on its own casts
+    one shadow ray among them, toward a lamp drawn by its unoccluded light there, instead of one per lamp
+    (core/light_selection.py)."""
     nearest_photon_fallback: bool = True
     """Pass 3: a gathering hit no record accepts takes the nearest visible photon's irradiance."""
     fallback_empty_disc: bool = True
