@@ -37,7 +37,7 @@ from .density import PhotonDensity
 from .density_control import controlled_pass
 from .direct import shade_direct
 from .direct_footprint import footprint_direct
-from .executor import TEXEL_CHUNK, Beside, Executor, Progress, default_workers, serial_executor
+from .executor import TEXEL_CHUNK, Beside, Executor, HelpedExecutor, Progress, default_workers
 from .hit_radiance import HitGrid
 from .hole_records import indirect_at_texels, texel_verdicts
 from .interpolation import CacheLookup
@@ -199,8 +199,9 @@ class _Run:
 
 class _Beside:
     """A stage of ``run`` on a thread of its own (:class:`~core.executor.Beside`): ``stage(side)`` on a copy
-    of the run that computes serially, with its own statistics, ray count and Embree clock. Its random
-    streams are its chunks' own, so it computes what it would in line.
+    of the run that computes on that one thread (a :class:`~core.executor.HelpedExecutor`: the bake's thread
+    takes its chunks too once it waits for it), with its own statistics, ray count and Embree clock. Its
+    random streams are its chunks' own, so it computes what it would in line.
 
     :meth:`start` starts it; calling it waits for it once (raising its error, or Cancelled), folds its
     statistics into ``run``'s and runs ``finish()``; :meth:`stop` ends it early. Called before anything
@@ -214,7 +215,8 @@ class _Beside:
         self.stats = BakeStats(workers=1, clock=self.view.clock)
         contact = run.contact()
         self.contact = None if contact is None else contact.view()  # the texels' stage tests samples meanwhile
-        side = replace(run, progress=Progress(), executor=serial_executor(), stats=self.stats, _caster=self.view,
+        self.executor = HelpedExecutor()  # one thread, the stage's own, which the bake's helps once it waits
+        side = replace(run, progress=Progress(), executor=self.executor, stats=self.stats, _caster=self.view,
                        _contact=self.contact)
         self._thread = Beside(lambda: stage(side), side.progress, run.progress)
         self._waited = False
@@ -231,7 +233,7 @@ class _Beside:
         else:
             if self._thread.running:  # the bake waits for it: that time is the bake's own (seconds.direct_wait)
                 with self.run.stats.stage(f"{self.name}_wait"):
-                    self._thread.wait()
+                    self._thread.wait(help=self.executor.help)
             self._thread.wait()  # raises the stage's error, or Cancelled
             self.run.stats.fold(self.stats)
             self.run.caster().rays_cast += self.view.rays_cast
