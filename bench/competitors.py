@@ -87,6 +87,9 @@ SCENES = {
     # room 2 (lit only through doorways): the floor at a column's base
     "occluded": SceneSpec("Occluded building, 16 texels/m", "occluded", 0, 16.0, (4, 16, 64), 64,
                           (7.5, 1.2, 0.0)),
+    # the building with its two lamps replaced by 64 of the same total power (deviation light-selection)
+    "occluded64": SceneSpec("Occluded building with 64 lamps, 16 texels/m", "occluded_lamps", 0, 16.0, (4, 16, 64),
+                            64, (7.5, 1.2, 0.0), optional=True),
     # the floor at the base of an arcade column beside the east light
     "sponza16": SceneSpec("Sponza, 16 texels/m", "sponza", 0, 16.0, (4, 16, 64), 128, (6.5, 2.3, 0.09)),
     "sponza8": SceneSpec("Sponza, 8 texels/m", "sponza", 0, 8.0, (4, 16, 64), 64, (6.5, 2.3, 0.09), optional=True),
@@ -210,7 +213,7 @@ def load_scene(spec: SceneSpec, work: Path):
     from pdic.pdic_addon.job import BakeJob
 
     loader = {"cornell": bench_scenes.load_cornell, "sponza": bench_scenes.load_sponza,
-              "occluded": bench_scenes.load_occluded}[spec.loader]
+              "occluded": bench_scenes.load_occluded, "occluded_lamps": bench_scenes.load_occluded_lamps}[spec.loader]
     obj = join(loader())
     settings = preset("FINAL", texel_density=spec.texel_density)
     obj.pdic.resolution = spec.resolution or bench_scenes.area_resolution(obj, settings)

@@ -95,6 +95,33 @@ def load_occluded() -> list:
     return objects
 
 
+LAMP_GRID_X = (1.0, 3.0, 5.0, 7.0, 9.75, 11.0, 13.5, 15.5)
+LAMP_GRID_Y = (1.0, 2.5, 4.0, 5.5)
+LAMP_GRID_Z = (2.0, 5.0)
+"""Where :func:`load_occluded_lamps` hangs its lamps: every room and storey, each lamp 0.2 m or more from the
+walls, columns, stairs and railings of :func:`load_occluded` (8 x 4 x 2 = 64 places)."""
+
+
+def load_occluded_lamps(count: int = 64) -> list:
+    """:func:`load_occluded` with its two 800 W lamps replaced by ``count`` point lamps of the same total
+    power, the first ``count`` places of the grid (LAMP_GRID_X, LAMP_GRID_Y, LAMP_GRID_Z) taken upstairs and
+    down alternately: a level lit by many small lamps, most of them behind a wall from any one point."""
+    objects = load_occluded()
+    for name in ("Lamp1", "Lamp3"):
+        bpy.data.objects.remove(bpy.data.objects[name])
+    places = [(x, y, z) for x in LAMP_GRID_X for y in LAMP_GRID_Y for z in LAMP_GRID_Z]
+    if not 1 <= count <= len(places):
+        raise ValueError(f"load_occluded_lamps: count must be 1-{len(places)}, got {count}")
+    for i, location in enumerate(places[:count]):
+        data = bpy.data.lights.new(f"Lamp{i:02d}", "POINT")
+        data.energy = 1600.0 / count
+        data.shadow_soft_size = 0.0
+        light = bpy.data.objects.new(f"Lamp{i:02d}", data)
+        light.location = location
+        bpy.context.scene.collection.objects.link(light)
+    return objects
+
+
 # --------------------------------------------------------------------------- to the core
 def area_resolution(obj, settings, tris=None) -> int:
     """The light-map side ``settings`` give ``obj``'s world surface area (``tris``: its
@@ -169,4 +196,4 @@ def triangles(scene) -> int:
     return int(scene.geometry.count)
 
 
-__all__ = ["load_cornell", "load_sponza", "load_occluded", "prepare", "extract_lightmap_uv", "np"]
+__all__ = ["load_cornell", "load_sponza", "load_occluded", "load_occluded_lamps", "prepare", "extract_lightmap_uv", "np"]
