@@ -309,14 +309,15 @@ first vertex whatever it meets."""
 GAP_WALK_SURVIVAL = 0.05
 """Least survival probability of a gap walk's Russian roulette (a throughput gain of at most 20)."""
 SELECTION_LAMPS = 16
-"""Point and spot lights a scene needs before its gathering hits draw one of them instead of casting a shadow
-ray to each (deviation: light-selection, core/light_selection.py). The occluded building with its two lamps
+"""Point, spot and area lights a scene needs before its gathering hits draw one of them instead of casting a
+shadow ray to each (deviation: light-selection, core/light_selection.py). The occluded building with its two lamps
 replaced by N spread through it (the same total power), Final, CPU s exact -> drawn: N = 4 25.1 -> 23.8,
 8 26.1 -> 25.6 (the draw's own arithmetic about what the rays it saves cost), 16 34.1 -> 29.1, 32 40.8 -> 35.3,
 64 59.6 -> 45.5. Below it every lamp keeps its ray (and the light maps their bits)."""
 SELECTION_DEFENSIVE = 0.1
-"""Share of a gathering hit's lamp draw spread evenly over the lamps with a radius (deviation:
-light-selection, core/light_selection.py): their centre's weight may call a point dark that they light."""
+"""Share of a gathering hit's lamp draw spread evenly over the lamps with a radius and the area lights
+(deviation: light-selection, core/light_selection.py): their centre's weight may call a point dark that they
+light."""
 CENTRE_FOOTPRINT_PER_AXIS = 4
 """Strata per axis standing for Cycles' jitter where a texel is sampled on its centre triangle only (deviations
 edge-folding and crease-folding, core/raster.py:centre_footprints). Sponza one object at 16 texels/m, the

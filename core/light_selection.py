@@ -1,7 +1,7 @@
 """Direct light at gathering hits with one shadow ray among the scene's lamps (deviation: light-selection).
 
 A gathering hit's direct light is one sample among the hundreds a record averages, so it need not be exact:
-among a scene's point and spot lights each hit casts one shadow ray, toward a lamp drawn with probability
+among a scene's point, spot and area lights each hit casts one shadow ray, toward a lamp drawn with probability
 proportional to what that lamp would give it unoccluded, and divides by that probability (an unbiased
 estimate of the sum over lamps), as Cycles' light tree draws one light per sample. A scene with 64 lamps would
 otherwise cast 64 shadow rays per gathering hit (the occluded building with 64 lamps spread through it: 211 M of
@@ -10,10 +10,11 @@ rays cost about what the draw's own arithmetic does. The texels' own direct ligh
 (read by many records, so their noise would not average), keep every lamp (core/direct.py).
 
 The weight of a lamp of radius 0 is its exact unoccluded irradiance at the hit (P cos / (4 pi d^2), times
-the spot mask), so no lamp that lights the hit is left out. A lamp with a radius lights points its centre's
-weight calls dark (the cone widened by its angular size, the horizon it rises above): a share
-SELECTION_DEFENSIVE of each draw is spread evenly over such lamps, so each keeps a probability > 0.
-Suns, area lights, emissive triangles and the world are sampled as before, every one.
+the spot mask), so no lamp that lights the hit is left out. A lamp with a radius, and an area light (weighed
+as a small one seen from its centre: L A cos cos_l / d^2, d^2 at least A), lights points its centre's weight
+calls dark (the cone widened by its angular size, the horizon it rises above): a share SELECTION_DEFENSIVE of
+each draw is spread evenly over such lamps, so each keeps a probability > 0. Suns, emissive triangles and the
+world are sampled as before, every one.
 """
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ import numpy as np
 
 from .constants import SELECTION_DEFENSIVE, SELECTION_LAMPS
 from .direct import DirectResult, direct_irradiance
-from .lights import PointLight, SpotLight, spot_attenuation
+from .lights import AreaLight, PointLight, SpotLight, spot_attenuation
 from .vectors import dots
 
 SELECTION_CHUNK = 1 << 22
@@ -29,10 +30,10 @@ SELECTION_CHUNK = 1 << 22
 
 
 def selectable_lamps(scene) -> tuple[tuple, tuple]:
-    """(lamps drawn among, the other emitters): the point and spot lights that emit, when there are
+    """(lamps drawn among, the other emitters): the point, spot and area lights that emit, when there are
     SELECTION_LAMPS or more; else nothing is drawn among, ((), every emitter)."""
     emitters = scene.emitters()
-    lamps = tuple(e for e in emitters if isinstance(e, (PointLight, SpotLight)) and e.emits())
+    lamps = tuple(e for e in emitters if isinstance(e, (PointLight, SpotLight, AreaLight)) and e.emits())
     if len(lamps) < SELECTION_LAMPS:
         return (), emitters
     return lamps, tuple(e for e in emitters if not any(e is lamp for lamp in lamps))
@@ -74,7 +75,7 @@ def lamp_probabilities(lamps, p: np.ndarray, n: np.ndarray) -> np.ndarray:
     """(K, m) the probability of drawing each of K lamps at points p (m, 3) facing unit n (m, 3); each column
     sums to 1, or is 0 where no lamp can light the point."""
     weight = np.stack([_unoccluded(lamp, p, n) for lamp in lamps])
-    soft = np.array([float(lamp.radius) > 0 for lamp in lamps])
+    soft = np.array([isinstance(lamp, AreaLight) or float(lamp.radius) > 0 for lamp in lamps])
     total = weight.sum(axis=0)
     pdf = np.divide(weight, total, out=np.zeros_like(weight), where=total > 0)
     if soft.any():
@@ -85,11 +86,20 @@ def lamp_probabilities(lamps, p: np.ndarray, n: np.ndarray) -> np.ndarray:
 
 def _unoccluded(lamp, p: np.ndarray, n: np.ndarray) -> np.ndarray:
     """(m,) a lamp's unoccluded irradiance at p facing n, luminance-like (its channels' mean), from its centre:
-    exact for radius 0, the draw's guide for a lamp with a radius."""
+    exact for radius 0, the draw's guide for a lamp with a radius or an area light."""
     delta = np.asarray(lamp.position, np.float64) - p
     d2 = dots(delta, delta)
     d = np.sqrt(d2)
     cos = np.divide(dots(n, delta), d, out=np.zeros_like(d), where=d > 0)
+    if isinstance(lamp, AreaLight):  # one-sided: nothing behind its plane
+        area = lamp.area
+        if not (area > 0 and np.isfinite(area)):
+            return np.zeros_like(d)
+        normal = np.asarray(lamp.normal, np.float64)
+        cos_l = np.divide(-dots(delta, np.broadcast_to(normal, delta.shape)), d * np.linalg.norm(normal),
+                          out=np.zeros_like(d), where=d > 0)
+        falloff = np.clip(cos, 0.0, None) * np.clip(cos_l, 0.0, None) / np.maximum(d2, area)
+        return falloff * area * float(np.mean(lamp.radiance))
     weight = np.divide(np.clip(cos, 0.0, None), 4.0 * np.pi * d2, out=np.zeros_like(d), where=d2 > 0)
     if isinstance(lamp, SpotLight):
         w = np.divide(-delta, d[:, None], out=np.zeros_like(delta), where=d[:, None] > 0)

@@ -75,8 +75,8 @@ class Deviations:
     (the foot of a wall rising from the record's surface) gathers by the gap walk too, facing the record
     or not."""
     light_selection: bool = True
-    """Pass 3, in scenes of SELECTION_LAMPS point and spot lights or more: a gathering hit shaded on its own casts
-    one shadow ray among them, toward a lamp drawn by its unoccluded light there, instead of one per lamp
+    """Pass 3, in scenes of SELECTION_LAMPS point, spot and area lights or more: a gathering hit shaded on its own
+    casts one shadow ray among them, toward a lamp drawn by its unoccluded light there, instead of one per lamp
     (core/light_selection.py)."""
     nearest_photon_fallback: bool = True
     """Pass 3: a gathering hit no record accepts takes the nearest visible photon's irradiance."""

@@ -9,7 +9,7 @@ import pytest
 from pdic.core.constants import SELECTION_LAMPS
 from pdic.core.direct import direct_irradiance
 from pdic.core.light_selection import gathering_direct, lamp_probabilities, selectable_lamps
-from pdic.core.lights import PointLight, SpotLight
+from pdic.core.lights import AreaLight, PointLight, SpotLight
 from pdic.core.pipeline import bake
 from pdic.core.rays import RayCaster
 from pdic.core.settings import Deviations, preset
@@ -19,15 +19,18 @@ from scenes import box_faces, lit, quad, quad_scene
 X, Y, Z = np.eye(3)
 
 
-def _lamps(count: int, radius: float = 0.0) -> list:
+def _lamps(count: int, radius: float = 0.0, area: bool = False) -> list:
     """``count`` lamps of 1 to 3 W scattered 0.3-2.5 m over the floor of :func:`_room`, every fourth a spot
-    aimed down; with ``radius``, every other one a sphere light."""
+    aimed down; with ``radius``, every other one a sphere light; with ``area``, every third a 0.4 x 0.3 m
+    area light facing down."""
     rng = np.random.default_rng(7)
     out = []
     for i in range(count):
         position = np.array([rng.uniform(-2, 2), rng.uniform(-2, 2), rng.uniform(0.3, 2.5)])
         power = np.full(3, 1.0 + 2.0 * rng.random()) * [1.0, 0.8, 0.6]
-        if i % 4 == 3:
+        if area and i % 3 == 2:
+            out.append(AreaLight(f"area{i}", position, -Z, X, Y, 0.4, 0.3, "RECTANGLE", power / (np.pi * 0.12)))
+        elif i % 4 == 3:
             out.append(SpotLight(f"spot{i}", position, -Z, power, np.radians(40.0), 0.2))
         else:
             out.append(PointLight(f"lamp{i}", position, power, radius if i % 2 else 0.0))
@@ -72,10 +75,11 @@ def test_probabilities_sum_to_one_and_vanish_where_no_lamp_can_light():
     assert (below[radius] > 0).all() and (below[~radius] == 0).all()
 
 
-@pytest.mark.parametrize("radius", [0.0, 0.15])
-def test_the_drawn_lamp_over_its_probability_is_every_lamps_light_on_average(radius):
-    """Many draws at each point average to every lamp's light (hard lamps exact; sphere lights sampled alike)."""
-    scene = _room(_lamps(2 * SELECTION_LAMPS, radius))
+@pytest.mark.parametrize("radius, area", [(0.0, False), (0.15, False), (0.0, True)])
+def test_the_drawn_lamp_over_its_probability_is_every_lamps_light_on_average(radius, area):
+    """Many draws at each point average to every lamp's light (hard lamps exact; sphere and area lights
+    sampled alike)."""
+    scene = _room(_lamps(2 * SELECTION_LAMPS, radius, area))
     lamps, others = selectable_lamps(scene)
     assert len(lamps) == 2 * SELECTION_LAMPS and others == ()
     caster = RayCaster(scene.geometry.positions, scene.extent)
@@ -83,7 +87,7 @@ def test_the_drawn_lamp_over_its_probability_is_every_lamps_light_on_average(rad
     draws = 3000
     P, N = np.repeat(p, draws, axis=0), np.repeat(n, draws, axis=0)
     drawn = gathering_direct(scene, caster, P, N, np.random.default_rng(2), True)
-    assert drawn.shadow_rays["point"] + drawn.shadow_rays["spot"] <= len(P)  # one ray a point, none where unlit
+    assert sum(drawn.shadow_rays.values()) <= len(P)  # one ray a point, none where nothing lights it
     mean = drawn.E.reshape(40, draws, 3).mean(axis=1)
     exact = direct_irradiance(scene, caster, P, N, N, 1, np.random.default_rng(5)).E.reshape(40, draws, 3).mean(1)
     assert np.isfinite(mean).all()
