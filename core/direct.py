@@ -122,7 +122,7 @@ def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, norma
     if n == 0:
         return out
     for emitter in scene.emitters() if emitters is None else emitters:
-        if edge_rng is None and getattr(emitter, "hard", False):  # a point light of radius 0
+        if getattr(emitter, "hard", False):  # a point light of radius 0
             _trace_hard(out, caster, p, n_s, n_g, emitter)
             continue
         if not hasattr(emitter, "sample_toward"):
@@ -184,8 +184,9 @@ def _trace(out: DirectResult, caster: RayCaster, p, n_g, shadow: ShadowSamples) 
 
 
 def _trace_hard(out: DirectResult, caster: RayCaster, p, n_s, n_g, light) -> None:
-    """:func:`_trace` of a point light of radius 0 (``light.hard``), the same sums in the same order without
-    the (k, m) sample arrays: its rays from ``light.shadow_rays`` (:func:`~core.lights.point_light_rays`)."""
+    """:func:`_trace` of a point light of radius 0 (``light.hard``), and :func:`edge_evidence` when ``out`` keeps
+    it, the same sums in the same order without the (k, m) sample arrays: its rays from ``light.shadow_rays``
+    (:func:`~core.lights.point_light_rays`). The light is exact: its one ray is each point's lit share."""
     P = _rgb(light.power, light.name)
     if not np.any(P > 0):
         _skip_all(out, light.name, len(p))
@@ -194,7 +195,11 @@ def _trace_hard(out: DirectResult, caster: RayCaster, p, n_s, n_g, light) -> Non
     vis = np.where(lit, caster.transmittance(start, directions, t_max, unit=True), 0.0)
     out.shadow_rays["point"] += len(rows)
     out.skipped[light.name] = out.skipped.get(light.name, 0) + len(p) - len(rows)
-    out.E[rows] += P * (weight * vis)[:, None]
+    lit_light = P * (weight * vis)[:, None]
+    out.E[rows] += lit_light
+    if out.edge_lit is not None:
+        out.edge_lit[rows] += lit_light
+        out.edge_open[rows] += P * weight[:, None]
 
 
 def _visibility(caster: RayCaster, p, n_g, shadow: ShadowSamples) -> np.ndarray:

@@ -100,6 +100,20 @@ def test_occluder_blocks_point_light():
     assert np.allclose(r.E[~shadowed, 0], point_E(p[~shadowed], light.position, 100.0), rtol=1e-9)
 
 
+def test_a_point_lights_edge_evidence_is_its_lit_and_its_unoccluded_light():
+    """An exact light's one ray is each point's lit share: the edge evidence (deviation direct-footprint) holds
+    its light as E does, and unblocked, with no ray of its own."""
+    light = sc.PointLight("lamp", np.array([0.0, 0.0, 2.0]), np.full(3, 100.0))
+    s = make_scene(FLOOR + quad((0.0, 0.0, 1.0), 0.2, 0.2), [light])
+    p, n = floor_points(n=11, half=0.8)
+    caster = RayCaster(s.geometry.positions, s.extent)
+    plain = direct_irradiance(s, caster, p, n, n, 4, np.random.default_rng(0))
+    r = direct_irradiance(s, caster, p, n, n, 4, np.random.default_rng(0), edge_rng=np.random.default_rng(1))
+    assert np.array_equal(r.E, plain.E) and np.array_equal(r.edge_lit, r.E)
+    np.testing.assert_allclose(r.edge_open[:, 0], point_E(p, light.position, 100.0), rtol=1e-9)
+    assert r.shadow_rays["point"] == plain.shadow_rays["point"] == 121  # one ray a lit point, none for the evidence
+
+
 def test_points_facing_away_receive_nothing_and_cast_no_shadow_rays():
     lights = [sc.PointLight("lamp", np.array([0.0, 0.0, 1.0]), np.full(3, 100.0)),
               sc.PointLight("soft", np.array([0.0, 0.0, 1.0]), np.full(3, 100.0), radius=0.2),
