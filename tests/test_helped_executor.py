@@ -6,7 +6,7 @@ import threading
 import numpy as np
 import pytest
 
-from pdic.core.executor import Beside, HelpedExecutor, Progress, map_chunks
+from pdic.core.executor import Beside, Cancelled, HelpedExecutor, Progress, map_chunks
 
 
 def _helper(executor: HelpedExecutor, stop: threading.Event, ran: list):
@@ -96,3 +96,28 @@ def test_the_waiting_thread_takes_chunks_of_the_side_stage():
     side.wait(help=executor.help)
     assert out == [np.arange(k, k + 1000).sum() for k in range(0, 200_000, 1000)]
     assert waiting in threads and len(set(threads)) == 2
+
+
+def test_a_cancel_while_the_waiting_thread_helps_stops_the_stage_and_raises_cancelled():
+    executor = HelpedExecutor()
+    side_progress, watch = Progress(), Progress()
+    waiting = threading.get_ident()
+    helped = threading.Event()
+    done = []
+
+    def stage():
+        def chunk(index, s):
+            if index == 0:
+                assert helped.wait(10)  # the side holds its first chunk until the waiting thread took one
+            elif threading.get_ident() == waiting and not helped.is_set():
+                watch.cancel()  # the user cancels while the bake's thread runs a chunk of the side
+                helped.set()
+            done.append(index)
+            return index
+        map_chunks(executor, chunk, list(range(10_000)), side_progress)
+
+    side = Beside(stage, side_progress, watch)
+    side.start()
+    with pytest.raises(Cancelled):
+        side.wait(help=executor.help)
+    assert not side.running and len(done) < 10_000
