@@ -36,7 +36,8 @@ def selectable_lamps(scene) -> tuple[tuple, tuple]:
     lamps = tuple(e for e in emitters if isinstance(e, (PointLight, SpotLight, AreaLight)) and e.emits())
     if len(lamps) < SELECTION_LAMPS:
         return (), emitters
-    return lamps, tuple(e for e in emitters if not any(e is lamp for lamp in lamps))
+    drawn = {id(lamp) for lamp in lamps}
+    return lamps, tuple(e for e in emitters if id(e) not in drawn)
 
 
 def gathering_direct(scene, caster, p: np.ndarray, n: np.ndarray, rng: np.random.Generator, select: bool
