@@ -53,12 +53,17 @@ def _boxes_object(name: str, boxes: list, colour) -> bpy.types.Object:
     return obj
 
 
-def load_occluded() -> list:
+OCCLUDED_LAMPS = (("Lamp1", (3.0, 3.0, 1.8), 800.0), ("Lamp3", (15.0, 4.5, 4.8), 800.0))
+"""The occluded building's point lamps: (name, location, watts), in rooms 1 and 3."""
+
+
+def load_occluded(lamps=OCCLUDED_LAMPS) -> list:
     """Three rooms in a row joined by doorways, a columned hall, a stair to a railed gallery.
 
     18 m x 6 m x 6 m shell (two storeys of 3 m; the gallery floor covers half of room 3),
     lit by two point lights in rooms 1 and 3 only: room 2 and the gallery get light
     through doorways and the stair well, past columns, stairs and railing bars.
+    lamps : the point lamps of radius 0, (name, location, watts) each (default OCCLUDED_LAMPS).
     """
     bpy.ops.wm.read_factory_settings(use_empty=True)
     t = 0.2  # wall thickness
@@ -85,9 +90,9 @@ def load_occluded() -> list:
         _boxes_object("Stairs", stairs, (0.5, 0.45, 0.4)),
         _boxes_object("Railings", rails, (0.3, 0.3, 0.32)),
     ]
-    for name, location in (("Lamp1", (3.0, 3.0, 1.8)), ("Lamp3", (15.0, 4.5, 4.8))):
+    for name, location, watts in lamps:
         data = bpy.data.lights.new(name, "POINT")
-        data.energy = 800.0
+        data.energy = watts
         data.shadow_soft_size = 0.0
         light = bpy.data.objects.new(name, data)
         light.location = location
@@ -106,20 +111,11 @@ def load_occluded_lamps(count: int = 64) -> list:
     """:func:`load_occluded` with its two 800 W lamps replaced by ``count`` point lamps of the same total
     power, the first ``count`` places of the grid (LAMP_GRID_X, LAMP_GRID_Y, LAMP_GRID_Z) taken upstairs and
     down alternately: a level lit by many small lamps, most of them behind a wall from any one point."""
-    objects = load_occluded()
-    for name in ("Lamp1", "Lamp3"):
-        bpy.data.objects.remove(bpy.data.objects[name])
     places = [(x, y, z) for x in LAMP_GRID_X for y in LAMP_GRID_Y for z in LAMP_GRID_Z]
     if not 1 <= count <= len(places):
         raise ValueError(f"load_occluded_lamps: count must be 1-{len(places)}, got {count}")
-    for i, location in enumerate(places[:count]):
-        data = bpy.data.lights.new(f"Lamp{i:02d}", "POINT")
-        data.energy = 1600.0 / count
-        data.shadow_soft_size = 0.0
-        light = bpy.data.objects.new(f"Lamp{i:02d}", data)
-        light.location = location
-        bpy.context.scene.collection.objects.link(light)
-    return objects
+    watts = sum(w for _, _, w in OCCLUDED_LAMPS) / count
+    return load_occluded([(f"Lamp{i:02d}", location, watts) for i, location in enumerate(places[:count])])
 
 
 # --------------------------------------------------------------------------- to the core

@@ -48,14 +48,16 @@ def gathering_direct(scene, caster, p: np.ndarray, n: np.ndarray, rng: np.random
     if not lamps:
         return direct_irradiance(scene, caster, p, n, n, 1, rng)
     out = direct_irradiance(scene, caster, p, n, n, 1, rng, emitters=others)
-    for s in range(0, len(p), max(1, SELECTION_CHUNK // len(lamps))):
-        rows = np.arange(s, min(s + max(1, SELECTION_CHUNK // len(lamps)), len(p)))
-        _add_selected(out, scene, caster, p[rows], n[rows], rows, lamps, rng)
+    step = max(1, SELECTION_CHUNK // len(lamps))
+    for start in range(0, len(p), step):
+        rows = slice(start, start + step)
+        _add_selected(out.E[rows], out.shadow_rays, scene, caster, p[rows], n[rows], lamps, rng)
     return out
 
 
-def _add_selected(out: DirectResult, scene, caster, p, n, rows, lamps, rng) -> None:
-    """Draw one lamp per point p (m, 3) (``rows`` its rows of ``out``), trace it, add its light / its probability."""
+def _add_selected(E: np.ndarray, shadow_rays: dict, scene, caster, p, n, lamps, rng) -> None:
+    """Draw one lamp per point p (m, 3), trace it, add its light over its probability to E (m, 3) (a view of the
+    caller's) and its rays to ``shadow_rays``."""
     pdf = lamp_probabilities(lamps, p, n)
     cdf = np.cumsum(pdf, axis=0)
     u = rng.random(len(p)) * cdf[-1]
@@ -67,9 +69,9 @@ def _add_selected(out: DirectResult, scene, caster, p, n, rows, lamps, rng) -> N
         if len(mine) == 0:
             continue
         one = direct_irradiance(scene, caster, p[mine], n[mine], n[mine], 1, rng, emitters=(lamp,))
-        out.E[rows[mine]] += one.E / pdf[i, mine][:, None]
+        E[mine] += one.E / pdf[i, mine][:, None]
         for kind, count in one.shadow_rays.items():
-            out.shadow_rays[kind] += count
+            shadow_rays[kind] += count
 
 
 def lamp_probabilities(lamps, p: np.ndarray, n: np.ndarray) -> np.ndarray:
