@@ -318,6 +318,14 @@ SELECTION_DEFENSIVE = 0.1
 """Share of a gathering hit's lamp draw spread evenly over the lamps with a radius and the area lights
 (deviation: light-selection, core/light_selection.py): their centre's weight may call a point dark that they
 light."""
+BUDGET_LAMPS = 2
+"""Soft lamps (area lights, point and spot lights with a radius) a scene needs before a point's soft shadow rays
+are shared among them by their unoccluded light instead of ``direct_samples`` each (deviation: light-budget,
+core/light_budget.py). Measured: docs/DEVIATIONS.md light-budget."""
+BUDGET_SCALE = 4.0
+"""A point's shadow rays among soft lamps, as a multiple of ``direct_samples`` (deviation: light-budget): a lamp
+gets BUDGET_SCALE x ``direct_samples`` x its share of their light, rounded up to a power of two, at most
+``direct_samples``."""
 CENTRE_FOOTPRINT_PER_AXIS = 4
 """Strata per axis standing for Cycles' jitter where a texel is sampled on its centre triangle only (deviations
 edge-folding and crease-folding, core/raster.py:centre_footprints). Sponza one object at 16 texels/m, the

@@ -31,12 +31,14 @@ texel chunks on the thread pool); randomness comes only from ``rng``.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .constants import STREAM_DIRECT_EDGE
 from .executor import TEXEL_CHUNK, slices
+from .lamp_weights import WEIGHT_CHUNK
+from .light_budget import budgeted_lamps, sample_counts
 from .lights import EMISSIVE_KEY, WORLD_KEY, SceneError, ShadowSamples, spot_attenuation  # noqa: F401 (re-exported)
 from .lights import _rgb
 from .rays import RayCaster
@@ -85,7 +87,8 @@ class DirectResult:
 
 def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, normals: np.ndarray,
                       geo_normals: np.ndarray, samples: int, rng: np.random.Generator,
-                      edge_rng: np.random.Generator | None = None, emitters: tuple | None = None) -> DirectResult:
+                      edge_rng: np.random.Generator | None = None, emitters: tuple | None = None,
+                      budget: bool = False) -> DirectResult:
     """Irradiance from every light, emissive triangle and the world at ``points``.
 
     Parameters
@@ -101,6 +104,7 @@ def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, norma
     rng : random stream for this chunk.
     edge_rng : with it, also the edge evidence (:func:`edge_evidence`), its probes drawn from it.
     emitters : the emitters to sum (default every one of ``scene.emitters()``).
+    budget : soft lamps share ``samples`` rays per point (deviation: light-budget, :mod:`core.light_budget`).
 
     Returns
     -------
@@ -121,7 +125,11 @@ def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, norma
     out = DirectResult(np.zeros((n, 3)), np.zeros((n, 3)) if edges else None, np.zeros((n, 3)) if edges else None)
     if n == 0:
         return out
-    for emitter in scene.emitters() if emitters is None else emitters:
+    emitters = scene.emitters() if emitters is None else emitters
+    lamps = ()
+    if budget:  # deviation: light-budget, docs/DEVIATIONS.md
+        lamps, emitters = budgeted_lamps(emitters, samples)
+    for emitter in emitters:
         if getattr(emitter, "hard", False):  # a point light of radius 0
             _trace_hard(out, caster, p, n_s, n_g, emitter)
             continue
@@ -134,7 +142,31 @@ def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, norma
         vis = _trace(out, caster, p, n_g, shadow)
         if edge_rng is not None:
             edge_evidence(out, caster, p, n_s, n_g, emitter, shadow, vis, edge_rng)
+    if lamps:
+        _trace_budgeted(out, caster, p, n_s, n_g, lamps, samples, rng, edge_rng)
     return out
+
+
+def _trace_budgeted(out: DirectResult, caster: RayCaster, p, n_s, n_g, lamps: tuple, samples: int,
+                    rng: np.random.Generator, edge_rng: np.random.Generator | None) -> None:
+    """Add soft ``lamps``' light to ``out``, each point's rays shared among them
+    (:func:`core.light_budget.sample_counts`): the points that give a lamp the same count sample it together.
+    Their edge evidence is drawn as for any soft emitter (:func:`edge_evidence`), one ray per lamp and point."""
+    step = max(1, WEIGHT_CHUNK // len(lamps))
+    for start in range(0, len(p), step):
+        part = np.arange(start, min(start + step, len(p)))
+        counts = sample_counts(lamps, p[part], n_s[part], samples)
+        for lamp, count in zip(lamps, counts):
+            for c in np.unique(count):
+                rows = part[count == c]
+                shadow = lamp.sample_toward(caster, p[rows], n_s[rows], n_g[rows], int(c), rng)
+                if shadow is None:  # the lamp sends nothing
+                    _skip_all(out, lamp.name, len(rows))
+                    continue
+                _trace(out, caster, p, n_g, replace(shadow, idx=rows[shadow.idx]), among=len(rows))
+    if edge_rng is not None:
+        for lamp in lamps:
+            _drawn_evidence(out, caster, p, n_s, n_g, lamp, edge_rng)
 
 
 def edge_evidence(out: DirectResult, caster: RayCaster, p, n_s, n_g, emitter, shadow: ShadowSamples,
@@ -152,11 +184,22 @@ def edge_evidence(out: DirectResult, caster: RayCaster, p, n_s, n_g, emitter, sh
     if shadow.kind == "world":
         return
     if not shadow.exact:
-        shadow = emitter.sample_toward(caster, p, n_s, n_g, 1, rng)
-        if shadow is None:
-            return
-        vis = _visibility(caster, p, n_g, shadow)
-        out.shadow_rays[shadow.kind] += int(shadow.ok.sum())
+        _drawn_evidence(out, caster, p, n_s, n_g, emitter, rng)
+        return
+    _add_evidence(out, shadow, vis)
+
+
+def _drawn_evidence(out: DirectResult, caster: RayCaster, p, n_s, n_g, emitter, rng: np.random.Generator) -> None:
+    """:func:`edge_evidence` of a soft emitter: one ray per point drawn from ``rng``."""
+    shadow = emitter.sample_toward(caster, p, n_s, n_g, 1, rng)
+    if shadow is None:
+        return
+    vis = _visibility(caster, p, n_g, shadow)
+    out.shadow_rays[shadow.kind] += int(shadow.ok.sum())
+    _add_evidence(out, shadow, vis)
+
+
+def _add_evidence(out: DirectResult, shadow: ShadowSamples, vis: np.ndarray) -> None:
     unoccluded = np.where(shadow.ok, shadow.weight, 0.0)
     _accumulate(out.edge_lit, shadow, unoccluded * vis)
     _accumulate(out.edge_open, shadow, unoccluded)
@@ -170,15 +213,15 @@ def _shape_check(a, n, name):
     return a if np.isfinite(a).all() else np.nan_to_num(a)  # the check: 4 us for 9k normals, the copy 29
 
 
-def _trace(out: DirectResult, caster: RayCaster, p, n_g, shadow: ShadowSamples) -> np.ndarray:
+def _trace(out: DirectResult, caster: RayCaster, p, n_g, shadow: ShadowSamples, among: int | None = None
+           ) -> np.ndarray:
     """Trace the shadow rays of accepted samples, add colour * mean(weight * transmittance) to out.E[idx]
-    and return the transmittances (k, m)."""
+    and return the transmittances (k, m). among : the points the samples were drawn for (default all of p):
+    those that cast no ray count as skipped."""
     vis = _visibility(caster, p, n_g, shadow)
-    traced_rows = np.flatnonzero(shadow.ok.any(axis=1))
+    traced = int(np.count_nonzero(shadow.ok.any(axis=1)))  # idx holds each point once
     out.shadow_rays[shadow.kind] += int(shadow.ok.sum())
-    traced = np.zeros(len(p), bool)
-    traced[shadow.idx[traced_rows]] = True
-    out.skipped[shadow.key] = out.skipped.get(shadow.key, 0) + int(len(p) - traced.sum())
+    out.skipped[shadow.key] = out.skipped.get(shadow.key, 0) + (len(p) if among is None else among) - traced
     _accumulate(out.E, shadow, np.where(shadow.ok, shadow.weight, 0.0) * vis)
     return vis
 
@@ -230,7 +273,7 @@ def _skip_all(out: DirectResult, key: str, n: int):
 
 
 def shade_direct(scene: Scene, caster: RayCaster, p: np.ndarray, n_shading: np.ndarray, n_geometric: np.ndarray,
-                 samples: int, seed: int, stream, executor, progress, whole: bool = False
+                 samples: int, seed: int, stream, executor, progress, whole: bool = False, budget: bool = False
                  ) -> tuple[np.ndarray | DirectResult, dict]:
     """Direct irradiance (n, 3) at surface points, chunked over the executor, plus summed work counters.
 
@@ -238,6 +281,7 @@ def shade_direct(scene: Scene, caster: RayCaster, p: np.ndarray, n_shading: np.n
         ``default_rng([seed, *stream, chunk])`` (core/constants.py lists the streams).
     whole : return the merged :class:`DirectResult` with the edge evidence (:func:`edge_evidence`, its
         probes from ``[seed, *stream, chunk, STREAM_DIRECT_EDGE]``) instead of its E.
+    budget : soft lamps share the samples (deviation: light-budget, :func:`direct_irradiance`).
     """
     serial = caster.serial()
     prefix = [seed, *np.atleast_1d(stream).tolist()]
@@ -247,7 +291,7 @@ def shade_direct(scene: Scene, caster: RayCaster, p: np.ndarray, n_shading: np.n
         edge_rng = np.random.default_rng([*prefix, index, STREAM_DIRECT_EDGE]) if whole else None
         n_s = n_shading[s]
         n_g = n_s if n_geometric is n_shading else n_geometric[s]  # one set of normals stays one
-        return direct_irradiance(scene, serial, p[s], n_s, n_g, samples, rng, edge_rng)
+        return direct_irradiance(scene, serial, p[s], n_s, n_g, samples, rng, edge_rng, budget=budget)
 
     # A chunk's arrays hold points x samples rays: past 16 samples the chunks shrink to keep them the size
     # they are at 16 (256 samples at full chunks would need ~3 GB on two workers).

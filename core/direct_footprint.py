@@ -130,7 +130,8 @@ def footprint_direct(scene, caster, target_index: int, points: TexelPoints, rast
         return E, counters
     soft = max(1, -(-settings.direct_samples * settings.texel_samples ** 2 // (m * m)))
     E_fp, rays = shade_direct(scene, caster, fp.p, fp.n_shading, fp.n_geometric, soft, settings.seed,
-                              (STREAM_DIRECT_FOOTPRINT, stream, 1), executor, progress)
+                              (STREAM_DIRECT_FOOTPRINT, stream, 1), executor, progress,
+                              budget=settings.deviations.light_budget)
     counters["direct_footprint_shadow_rays"] = rays["shadow_rays"]
     if contact is not None:
         E_fp[contact.samples(fp.p, fp.triangle)] = 0.0

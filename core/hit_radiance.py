@@ -299,7 +299,8 @@ def cell_albedo(scene, L: np.ndarray, offset: np.ndarray, triangle: np.ndarray, 
 
 
 def build_hit_grid(scene, caster, indirect_at, R_min: float, hits: int, seed: int, stream, executor, progress,
-                   direct_from: HitGrid | None = None, with_open_cells: bool = False) -> tuple[HitGrid, dict]:
+                   direct_from: HitGrid | None = None, with_open_cells: bool = False, light_budget: bool = False
+                   ) -> tuple[HitGrid, dict]:
     """The grid over ``scene``'s triangles and counters (cells, shadow rays, the lookups' rays).
 
     indirect_at : callable (q (m, 3), n (m, 3), known (2, m) or None) -> (E_indirect on the side n faces
@@ -312,6 +313,8 @@ def build_hit_grid(scene, caster, indirect_at, R_min: float, hits: int, seed: in
     direct_from : an earlier grid of this scene; its direct light, fallback picks and open cells are
         reused if its cells are the same.
     with_open_cells : find the cells open on each side (:func:`open_cells`; deviation: open-cells).
+    light_budget : the centroids' soft lamps share their shadow rays (deviation: light-budget,
+        :mod:`core.light_budget`).
     """
     positions = scene.geometry.positions
     budget = int(min(HIT_GRID_MAX_CELLS, HIT_GRID_CELLS_PER_HIT * hits / 2))
@@ -337,7 +340,7 @@ def build_hit_grid(scene, caster, indirect_at, R_min: float, hits: int, seed: in
         if not reuse:
             E_direct[side], direct_counters = shade_direct(scene, caster, q, n, n, HIT_GRID_DIRECT_SAMPLES, seed,
                                                            [*np.atleast_1d(stream).tolist(), side], executor,
-                                                           progress)
+                                                           progress, budget=light_budget)
             counters["hit_grid_shadow_rays"] += direct_counters["shadow_rays"]
     known = direct_from.fallback if reuse else None
     # Both sides in one pass: a centroid's nearest photons are the same on either side.

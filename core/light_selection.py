@@ -20,14 +20,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .constants import SELECTION_DEFENSIVE, SELECTION_LAMPS
+from .constants import SELECTION_LAMPS
 from .direct import DirectResult, direct_irradiance
-from .lights import AreaLight, PointLight, SpotLight, spot_attenuation
-from .vectors import dots
-
-SELECTION_CHUNK = 1 << 22
-"""Lamp weights held at once (lamps x points): a chunk of points is drawn for at a time."""
-
+from .lamp_weights import WEIGHT_CHUNK, lamp_probabilities
+from .lights import AreaLight, PointLight, SpotLight
 
 def selectable_lamps(scene) -> tuple[tuple, tuple]:
     """(lamps drawn among, the other emitters): the point, spot and area lights that emit, when there are
@@ -48,7 +44,7 @@ def gathering_direct(scene, caster, p: np.ndarray, n: np.ndarray, rng: np.random
     if not lamps:
         return direct_irradiance(scene, caster, p, n, n, 1, rng)
     out = direct_irradiance(scene, caster, p, n, n, 1, rng, emitters=others)
-    step = max(1, SELECTION_CHUNK // len(lamps))
+    step = max(1, WEIGHT_CHUNK // len(lamps))
     for start in range(0, len(p), step):
         rows = slice(start, start + step)
         _add_selected(out.E[rows], out.shadow_rays, scene, caster, p[rows], n[rows], lamps, rng)
@@ -72,39 +68,3 @@ def _add_selected(E: np.ndarray, shadow_rays: dict, scene, caster, p, n, lamps, 
         E[mine] += one.E / pdf[i, mine][:, None]
         for kind, count in one.shadow_rays.items():
             shadow_rays[kind] += count
-
-
-def lamp_probabilities(lamps, p: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """(K, m) the probability of drawing each of K lamps at points p (m, 3) facing unit n (m, 3); each column
-    sums to 1, or is 0 where no lamp can light the point."""
-    weight = np.stack([_unoccluded(lamp, p, n) for lamp in lamps])
-    soft = np.array([isinstance(lamp, AreaLight) or float(lamp.radius) > 0 for lamp in lamps])
-    total = weight.sum(axis=0)
-    pdf = np.divide(weight, total, out=np.zeros_like(weight), where=total > 0)
-    if soft.any():
-        even = soft[:, None] / soft.sum()
-        pdf = np.where(total > 0, (1.0 - SELECTION_DEFENSIVE) * pdf + SELECTION_DEFENSIVE * even, even)
-    return pdf
-
-
-def _unoccluded(lamp, p: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """(m,) a lamp's unoccluded irradiance at p facing n, luminance-like (its channels' mean), from its centre:
-    exact for radius 0, the draw's guide for a lamp with a radius or an area light."""
-    delta = np.asarray(lamp.position, np.float64) - p
-    d2 = dots(delta, delta)
-    d = np.sqrt(d2)
-    cos = np.divide(dots(n, delta), d, out=np.zeros_like(d), where=d > 0)
-    if isinstance(lamp, AreaLight):  # one-sided: nothing behind its plane
-        area = lamp.area
-        if not (area > 0 and np.isfinite(area)):
-            return np.zeros_like(d)
-        normal = np.asarray(lamp.normal, np.float64)
-        cos_l = np.divide(-dots(delta, np.broadcast_to(normal, delta.shape)), d * np.linalg.norm(normal),
-                          out=np.zeros_like(d), where=d > 0)
-        falloff = np.clip(cos, 0.0, None) * np.clip(cos_l, 0.0, None) / np.maximum(d2, area)
-        return falloff * area * float(np.mean(lamp.radiance))
-    weight = np.divide(np.clip(cos, 0.0, None), 4.0 * np.pi * d2, out=np.zeros_like(d), where=d2 > 0)
-    if isinstance(lamp, SpotLight):
-        w = np.divide(-delta, d[:, None], out=np.zeros_like(delta), where=d[:, None] > 0)
-        weight *= spot_attenuation(lamp)(w)
-    return weight * float(np.mean(lamp.power))

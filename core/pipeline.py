@@ -390,7 +390,8 @@ def shade_direct_at_targets(run: "_Run", targets: list[TargetTexels], beside: bo
             p = t.points
             direct, counters = shade_direct(lit, side.caster(), p.p, p.n_shading, p.n_geometric,
                                             settings.direct_samples, settings.seed, (STREAM_DIRECT, t.stream),
-                                            side.executor, side.progress, whole=True)
+                                            side.executor, side.progress, whole=True,
+                                            budget=settings.deviations.light_budget)
             contact = side.contact()
             if contact is not None:  # deviations: contact-faces, under-sheets, docs/DEVIATIONS.md
                 direct = replace(direct, E=np.where(contact.samples(p.p, p.triangle)[:, None], 0.0, direct.E))
@@ -434,7 +435,8 @@ def _direct_key(run: "_Run", t: TargetTexels) -> str:
     settings = run.settings
     return run.store.key("direct", run.transport(), t.key, settings.direct_samples, settings.seed,
                          settings.deviations.direct_footprint, settings.direct_footprint_side, run.sky is not None,
-                         settings.deviations.contact_faces, settings.deviations.under_sheets)
+                         settings.deviations.contact_faces, settings.deviations.under_sheets,
+                         settings.deviations.light_budget)
 
 
 def validity_without_indirect(run: "_Run", targets: list[TargetTexels]) -> None:

@@ -106,7 +106,7 @@ def gather_sources(density: PhotonDensity, lighting: PhotonLighting, records: Ir
     hits = len(records) * settings.hemisphere_theta * settings.hemisphere_phi
     grid, counters = build_hit_grid(scene, caster, indirect_at, params.R_min, hits, settings.seed,
                                     [STREAM_HIT_GRID, use], executor, progress, direct_from,
-                                    settings.deviations.open_cells)
+                                    settings.deviations.open_cells, settings.deviations.light_budget)
     caster.rays_cast += counters["hit_grid_lookup_rays"] + counters["hit_grid_open_rays"]
     return replace(sources, hit_grid=grid), counters
 
@@ -120,7 +120,7 @@ def light_photons(scene, caster, photons, lighting: PhotonLighting, settings: Ba
         p = photons.p.astype(np.float64)
         n = photons.n.astype(np.float64)
         E_direct = shade_direct(scene, caster, p, n, n, PHOTON_DIRECT_SAMPLES, settings.seed,
-                                STREAM_PHOTON_DIRECT, executor, progress)[0]
+                                STREAM_PHOTON_DIRECT, executor, progress, budget=settings.deviations.light_budget)[0]
     return PhotonLighting(lighting.w_sum, lighting.E_indirect_sum, E_direct.astype(np.float32))
 
 

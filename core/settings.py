@@ -78,6 +78,10 @@ class Deviations:
     """Pass 3, in scenes of SELECTION_LAMPS point, spot and area lights or more: a gathering hit shaded on its own
     casts one shadow ray among them, toward a lamp drawn by its unoccluded light there, instead of one per lamp
     (core/light_selection.py)."""
+    light_budget: bool = True
+    """In scenes of BUDGET_LAMPS soft lamps or more (area lights, point and spot lights with a radius): a point's
+    soft shadow rays are shared among them by their unoccluded light there, about ``direct_samples`` in all,
+    instead of ``direct_samples`` per lamp (core/light_budget.py)."""
     nearest_photon_fallback: bool = True
     """Pass 3: a gathering hit no record accepts takes the nearest visible photon's irradiance."""
     fallback_empty_disc: bool = True
