@@ -326,6 +326,10 @@ BUDGET_SCALE = 4.0
 """A point's shadow rays among soft lamps, as a multiple of ``direct_samples`` (deviation: light-budget): a lamp
 gets BUDGET_SCALE x ``direct_samples`` x its share of their light, rounded up to a power of two, at most
 ``direct_samples``."""
+DRAWN_SHARE = 1.0 / 32.0
+"""Where a point casts one ray per soft lamp (a footprint's points, core/direct_footprint.py), a lamp giving it this
+share of the soft lamps' light or more keeps its ray; the others share one, drawn among them by their shares
+(deviation: light-budget)."""
 CENTRE_FOOTPRINT_PER_AXIS = 4
 """Strata per axis standing for Cycles' jitter where a texel is sampled on its centre triangle only (deviations
 edge-folding and crease-folding, core/raster.py:centre_footprints). Sponza one object at 16 texels/m, the

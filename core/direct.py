@@ -38,7 +38,7 @@ import numpy as np
 from .constants import STREAM_DIRECT_EDGE
 from .executor import TEXEL_CHUNK, slices
 from .lamp_weights import WEIGHT_CHUNK
-from .light_budget import budgeted_lamps, sample_counts
+from .light_budget import budgeted_lamps, drawn_lamps, sample_counts
 from .lights import EMISSIVE_KEY, WORLD_KEY, SceneError, ShadowSamples, spot_attenuation  # noqa: F401 (re-exported)
 from .lights import _rgb
 from .rays import RayCaster
@@ -88,7 +88,7 @@ class DirectResult:
 def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, normals: np.ndarray,
                       geo_normals: np.ndarray, samples: int, rng: np.random.Generator,
                       edge_rng: np.random.Generator | None = None, emitters: tuple | None = None,
-                      budget: bool = False) -> DirectResult:
+                      budget: bool = False, draws: np.ndarray | None = None) -> DirectResult:
     """Irradiance from every light, emissive triangle and the world at ``points``.
 
     Parameters
@@ -105,6 +105,8 @@ def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, norma
     edge_rng : with it, also the edge evidence (:func:`edge_evidence`), its probes drawn from it.
     emitters : the emitters to sum (default every one of ``scene.emitters()``).
     budget : soft lamps share ``samples`` rays per point (deviation: light-budget, :mod:`core.light_budget`).
+    draws : with ``budget`` and one sample, (n,) numbers in [0, 1) by which each point draws one soft lamp instead
+        of a ray toward each (:func:`core.light_budget.group_draws`), or None.
 
     Returns
     -------
@@ -128,7 +130,7 @@ def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, norma
     emitters = scene.emitters() if emitters is None else emitters
     lamps = ()
     if budget:  # deviation: light-budget, docs/DEVIATIONS.md
-        lamps, emitters = budgeted_lamps(emitters, samples)
+        lamps, emitters = budgeted_lamps(emitters, samples, draws is not None)
     for emitter in emitters:
         if getattr(emitter, "hard", False):  # a point light of radius 0
             _trace_hard(out, caster, p, n_s, n_g, emitter)
@@ -142,9 +144,33 @@ def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, norma
         vis = _trace(out, caster, p, n_g, shadow)
         if edge_rng is not None:
             edge_evidence(out, caster, p, n_s, n_g, emitter, shadow, vis, edge_rng)
-    if lamps:
+    if lamps and samples <= 1:
+        _trace_drawn(out, caster, p, n_s, n_g, lamps, np.asarray(draws, np.float64), rng)
+    elif lamps:
         _trace_budgeted(out, caster, p, n_s, n_g, lamps, samples, rng, edge_rng)
     return out
+
+
+def _trace_drawn(out: DirectResult, caster: RayCaster, p, n_s, n_g, lamps: tuple, draws: np.ndarray,
+                 rng: np.random.Generator) -> None:
+    """Add soft ``lamps``' light to ``out``: a ray per point toward each lamp that gives it a large share, and one
+    toward a lamp the point's number in ``draws`` picks among the others (:func:`core.light_budget.drawn_lamps`)."""
+    step = max(1, WEIGHT_CHUNK // len(lamps))
+    for start in range(0, len(p), step):
+        part = np.arange(start, min(start + step, len(p)))
+        weights = drawn_lamps(lamps, p[part], n_s[part], draws[part])
+        for lamp, factor in zip(lamps, weights):
+            mine = np.flatnonzero(factor > 0)
+            _skip_all(out, lamp.name, len(part) - len(mine))
+            if len(mine) == 0:
+                continue
+            rows = part[mine]
+            shadow = lamp.sample_toward(caster, p[rows], n_s[rows], n_g[rows], 1, rng)
+            if shadow is None:  # the lamp sends nothing
+                _skip_all(out, lamp.name, len(rows))
+                continue
+            weight = shadow.weight * factor[mine[shadow.idx]][:, None]
+            _trace(out, caster, p, n_g, replace(shadow, idx=rows[shadow.idx], weight=weight), among=len(rows))
 
 
 def _trace_budgeted(out: DirectResult, caster: RayCaster, p, n_s, n_g, lamps: tuple, samples: int,
@@ -273,8 +299,8 @@ def _skip_all(out: DirectResult, key: str, n: int):
 
 
 def shade_direct(scene: Scene, caster: RayCaster, p: np.ndarray, n_shading: np.ndarray, n_geometric: np.ndarray,
-                 samples: int, seed: int, stream, executor, progress, whole: bool = False, budget: bool = False
-                 ) -> tuple[np.ndarray | DirectResult, dict]:
+                 samples: int, seed: int, stream, executor, progress, whole: bool = False, budget: bool = False,
+                 draws: np.ndarray | None = None) -> tuple[np.ndarray | DirectResult, dict]:
     """Direct irradiance (n, 3) at surface points, chunked over the executor, plus summed work counters.
 
     stream : int or sequence of ints after ``seed`` in each chunk's generator
@@ -282,6 +308,7 @@ def shade_direct(scene: Scene, caster: RayCaster, p: np.ndarray, n_shading: np.n
     whole : return the merged :class:`DirectResult` with the edge evidence (:func:`edge_evidence`, its
         probes from ``[seed, *stream, chunk, STREAM_DIRECT_EDGE]``) instead of its E.
     budget : soft lamps share the samples (deviation: light-budget, :func:`direct_irradiance`).
+    draws : (n,) each point's number for drawing a soft lamp, as :func:`direct_irradiance` takes it, or None.
     """
     serial = caster.serial()
     prefix = [seed, *np.atleast_1d(stream).tolist()]
@@ -291,7 +318,8 @@ def shade_direct(scene: Scene, caster: RayCaster, p: np.ndarray, n_shading: np.n
         edge_rng = np.random.default_rng([*prefix, index, STREAM_DIRECT_EDGE]) if whole else None
         n_s = n_shading[s]
         n_g = n_s if n_geometric is n_shading else n_geometric[s]  # one set of normals stays one
-        return direct_irradiance(scene, serial, p[s], n_s, n_g, samples, rng, edge_rng, budget=budget)
+        return direct_irradiance(scene, serial, p[s], n_s, n_g, samples, rng, edge_rng, budget=budget,
+                                 draws=None if draws is None else draws[s])
 
     # A chunk's arrays hold points x samples rays: past 16 samples the chunks shrink to keep them the size
     # they are at 16 (256 samples at full chunks would need ~3 GB on two workers).

@@ -30,6 +30,7 @@ import numpy as np
 from .constants import (DIRECT_EDGE_CONTRAST, DIRECT_EDGE_FLOOR, DIRECT_FOOTPRINT_PER_AXIS,
                         DIRECT_NEIGHBOUR_TEXELS, STREAM_DIRECT_FOOTPRINT)
 from .direct import DirectResult, shade_direct
+from .light_budget import budgeted_lamps, group_draws
 from .texels import TargetRaster, TexelPoints, footprint_texel_points
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
@@ -129,9 +130,13 @@ def footprint_direct(scene, caster, target_index: int, points: TexelPoints, rast
     if len(fp) == 0:
         return E, counters
     soft = max(1, -(-settings.direct_samples * settings.texel_samples ** 2 // (m * m)))
+    draws = None
+    budget = settings.deviations.light_budget
+    if budget and soft == 1 and budgeted_lamps(scene.emitters(), soft, drawn=True)[0]:
+        # deviation: light-budget: a texel's points draw one soft lamp each, the texel's draws spread by its shares
+        draws = group_draws(fp.texel, np.random.default_rng([settings.seed, STREAM_DIRECT_FOOTPRINT, stream, 2]))
     E_fp, rays = shade_direct(scene, caster, fp.p, fp.n_shading, fp.n_geometric, soft, settings.seed,
-                              (STREAM_DIRECT_FOOTPRINT, stream, 1), executor, progress,
-                              budget=settings.deviations.light_budget)
+                              (STREAM_DIRECT_FOOTPRINT, stream, 1), executor, progress, budget=budget, draws=draws)
     counters["direct_footprint_shadow_rays"] = rays["shadow_rays"]
     if contact is not None:
         E_fp[contact.samples(fp.p, fp.triangle)] = 0.0
