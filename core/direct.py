@@ -105,8 +105,8 @@ def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, norma
     edge_rng : with it, also the edge evidence (:func:`edge_evidence`), its probes drawn from it.
     emitters : the emitters to sum (default every one of ``scene.emitters()``).
     budget : soft lamps share ``samples`` rays per point (deviation: light-budget, :mod:`core.light_budget`).
-    draws : with ``budget`` and one sample, (n,) numbers in [0, 1) by which each point draws one soft lamp instead
-        of a ray toward each (:func:`core.light_budget.group_draws`), or None.
+    draws : with ``budget`` and one sample, (n,) numbers in [0, 1) by which each point draws one ray among the soft
+        lamps that give it small shares instead of a ray toward each (:func:`core.light_budget.group_draws`), or None.
 
     Returns
     -------
@@ -147,7 +147,10 @@ def direct_irradiance(scene: Scene, caster: RayCaster, points: np.ndarray, norma
     if lamps and samples <= 1:
         _trace_drawn(out, caster, p, n_s, n_g, lamps, np.asarray(draws, np.float64), rng)
     elif lamps:
-        _trace_budgeted(out, caster, p, n_s, n_g, lamps, samples, rng, edge_rng)
+        _trace_budgeted(out, caster, p, n_s, n_g, lamps, samples, rng)
+    if lamps and edge_rng is not None:  # their edge evidence as any soft emitter's: one ray per lamp and point
+        for lamp in lamps:
+            _drawn_evidence(out, caster, p, n_s, n_g, lamp, edge_rng)
     return out
 
 
@@ -174,10 +177,9 @@ def _trace_drawn(out: DirectResult, caster: RayCaster, p, n_s, n_g, lamps: tuple
 
 
 def _trace_budgeted(out: DirectResult, caster: RayCaster, p, n_s, n_g, lamps: tuple, samples: int,
-                    rng: np.random.Generator, edge_rng: np.random.Generator | None) -> None:
+                    rng: np.random.Generator) -> None:
     """Add soft ``lamps``' light to ``out``, each point's rays shared among them
-    (:func:`core.light_budget.sample_counts`): the points that give a lamp the same count sample it together.
-    Their edge evidence is drawn as for any soft emitter (:func:`edge_evidence`), one ray per lamp and point."""
+    (:func:`core.light_budget.sample_counts`): the points that give a lamp the same count sample it together."""
     step = max(1, WEIGHT_CHUNK // len(lamps))
     for start in range(0, len(p), step):
         part = np.arange(start, min(start + step, len(p)))
@@ -190,9 +192,6 @@ def _trace_budgeted(out: DirectResult, caster: RayCaster, p, n_s, n_g, lamps: tu
                     _skip_all(out, lamp.name, len(rows))
                     continue
                 _trace(out, caster, p, n_g, replace(shadow, idx=rows[shadow.idx]), among=len(rows))
-    if edge_rng is not None:
-        for lamp in lamps:
-            _drawn_evidence(out, caster, p, n_s, n_g, lamp, edge_rng)
 
 
 def edge_evidence(out: DirectResult, caster: RayCaster, p, n_s, n_g, emitter, shadow: ShadowSamples,

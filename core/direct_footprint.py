@@ -133,7 +133,7 @@ def footprint_direct(scene, caster, target_index: int, points: TexelPoints, rast
     draws = None
     budget = settings.deviations.light_budget
     if budget and soft == 1 and budgeted_lamps(scene.emitters(), soft, drawn=True)[0]:
-        # deviation: light-budget: a texel's points draw one soft lamp each, the texel's draws spread by its shares
+        # deviation: light-budget: soft lamps of small shares share one ray, drawn evenly over the texel's points
         draws = group_draws(fp.texel, np.random.default_rng([settings.seed, STREAM_DIRECT_FOOTPRINT, stream, 2]))
     E_fp, rays = shade_direct(scene, caster, fp.p, fp.n_shading, fp.n_geometric, soft, settings.seed,
                               (STREAM_DIRECT_FOOTPRINT, stream, 1), executor, progress, budget=budget, draws=draws)
