@@ -37,7 +37,7 @@ import numpy as np
 
 from .constants import STREAM_DIRECT_EDGE
 from .executor import TEXEL_CHUNK, slices
-from .lamp_weights import WEIGHT_CHUNK
+from .lamp_weights import weight_chunks
 from .light_budget import budgeted_lamps, drawn_lamps, sample_counts
 from .lights import EMISSIVE_KEY, WORLD_KEY, SceneError, ShadowSamples, spot_attenuation  # noqa: F401 (re-exported)
 from .lights import _rgb
@@ -158,40 +158,36 @@ def _trace_drawn(out: DirectResult, caster: RayCaster, p, n_s, n_g, lamps: tuple
                  rng: np.random.Generator) -> None:
     """Add soft ``lamps``' light to ``out``: a ray per point toward each lamp that gives it a large share, and one
     toward a lamp the point's number in ``draws`` picks among the others (:func:`core.light_budget.drawn_lamps`)."""
-    step = max(1, WEIGHT_CHUNK // len(lamps))
-    for start in range(0, len(p), step):
-        part = np.arange(start, min(start + step, len(p)))
+    for part in weight_chunks(len(p), len(lamps)):
         weights = drawn_lamps(lamps, p[part], n_s[part], draws[part])
         for lamp, factor in zip(lamps, weights):
             mine = np.flatnonzero(factor > 0)
-            _skip_all(out, lamp.name, len(part) - len(mine))
-            if len(mine) == 0:
-                continue
-            rows = part[mine]
-            shadow = lamp.sample_toward(caster, p[rows], n_s[rows], n_g[rows], 1, rng)
-            if shadow is None:  # the lamp sends nothing
-                _skip_all(out, lamp.name, len(rows))
-                continue
-            weight = shadow.weight * factor[mine[shadow.idx]][:, None]
-            _trace(out, caster, p, n_g, replace(shadow, idx=rows[shadow.idx], weight=weight), among=len(rows))
+            _skip_all(out, lamp.name, (part.stop - part.start) - len(mine))
+            if len(mine):
+                _trace_rows(out, caster, p, n_s, n_g, lamp, part.start + mine, 1, rng, factor[mine])
 
 
 def _trace_budgeted(out: DirectResult, caster: RayCaster, p, n_s, n_g, lamps: tuple, samples: int,
                     rng: np.random.Generator) -> None:
     """Add soft ``lamps``' light to ``out``, each point's rays shared among them
     (:func:`core.light_budget.sample_counts`): the points that give a lamp the same count sample it together."""
-    step = max(1, WEIGHT_CHUNK // len(lamps))
-    for start in range(0, len(p), step):
-        part = np.arange(start, min(start + step, len(p)))
+    for part in weight_chunks(len(p), len(lamps)):
         counts = sample_counts(lamps, p[part], n_s[part], samples)
         for lamp, count in zip(lamps, counts):
             for c in np.unique(count):
-                rows = part[count == c]
-                shadow = lamp.sample_toward(caster, p[rows], n_s[rows], n_g[rows], int(c), rng)
-                if shadow is None:  # the lamp sends nothing
-                    _skip_all(out, lamp.name, len(rows))
-                    continue
-                _trace(out, caster, p, n_g, replace(shadow, idx=rows[shadow.idx]), among=len(rows))
+                _trace_rows(out, caster, p, n_s, n_g, lamp, part.start + np.flatnonzero(count == c), int(c), rng)
+
+
+def _trace_rows(out: DirectResult, caster: RayCaster, p, n_s, n_g, lamp, rows: np.ndarray, samples: int,
+                rng: np.random.Generator, factor: np.ndarray | None = None) -> None:
+    """:func:`_trace` of ``samples`` samples of one soft ``lamp`` at the points ``rows`` of p, their weights times
+    ``factor`` (one per row) if given."""
+    shadow = lamp.sample_toward(caster, p[rows], n_s[rows], n_g[rows], samples, rng)
+    if shadow is None:  # the lamp sends nothing
+        _skip_all(out, lamp.name, len(rows))
+        return
+    weight = shadow.weight if factor is None else shadow.weight * factor[shadow.idx][:, None]
+    _trace(out, caster, p, n_g, replace(shadow, idx=rows[shadow.idx], weight=weight), among=len(rows))
 
 
 def edge_evidence(out: DirectResult, caster: RayCaster, p, n_s, n_g, emitter, shadow: ShadowSamples,

@@ -8,18 +8,32 @@ from __future__ import annotations
 import numpy as np
 
 from .constants import SELECTION_DEFENSIVE
-from .lights import AreaLight, SpotLight, spot_attenuation
+from .lights import AreaLight, PointLight, SpotLight, spot_attenuation
 from .vectors import dots
 
 WEIGHT_CHUNK = 1 << 22
 """Lamp weights held at once (lamps x points): a chunk of points is weighed at a time."""
 
 
+def weight_chunks(points: int, lamps: int):
+    """Slices of ``points`` points whose weights toward ``lamps`` lamps stay within WEIGHT_CHUNK values."""
+    step = max(1, WEIGHT_CHUNK // max(lamps, 1))
+    for start in range(0, points, step):
+        yield slice(start, min(start + step, points))
+
+
+def soft_lamp(lamp) -> bool:
+    """Whether ``lamp`` has a soft shadow: an area light, or a point or spot light with a radius."""
+    if isinstance(lamp, AreaLight):
+        return True
+    return isinstance(lamp, (PointLight, SpotLight)) and float(lamp.radius) > 0.0
+
+
 def lamp_probabilities(lamps, p: np.ndarray, n: np.ndarray) -> np.ndarray:
     """(K, m) the probability of drawing each of K lamps at points p (m, 3) facing unit n (m, 3); each column
     sums to 1, or is 0 where no lamp can light the point."""
     weight = np.stack([unoccluded(lamp, p, n) for lamp in lamps])
-    soft = np.array([isinstance(lamp, AreaLight) or float(lamp.radius) > 0 for lamp in lamps])
+    soft = np.array([soft_lamp(lamp) for lamp in lamps])
     total = weight.sum(axis=0)
     pdf = np.divide(weight, total, out=np.zeros_like(weight), where=total > 0)
     if soft.any():

@@ -23,15 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from .constants import BUDGET_LAMPS, BUDGET_SCALE, DRAWN_SHARE
-from .lamp_weights import lamp_probabilities
-from .lights import AreaLight, PointLight, SpotLight
-
-
-def soft_lamp(emitter) -> bool:
-    """Whether ``emitter`` is a lamp whose shadow is soft: an area light, or a point or spot light with a radius."""
-    if isinstance(emitter, AreaLight):
-        return True
-    return isinstance(emitter, (PointLight, SpotLight)) and float(emitter.radius) > 0.0
+from .lamp_weights import lamp_probabilities, soft_lamp
 
 
 def budgeted_lamps(emitters: tuple, samples: int, drawn: bool = False) -> tuple[tuple, tuple]:
@@ -79,9 +71,9 @@ def group_draws(group: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return u
 
 
-def drawn_lamps(lamps: tuple, p: np.ndarray, n: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(weights (K, m): each of K soft lamps' factor at points p (m, 3) facing unit n (m, 3), 0 where it casts no
-    ray). A lamp giving a point a share of DRAWN_SHARE or more of the lamps' light casts its ray there, factor 1;
+def drawn_lamps(lamps: tuple, p: np.ndarray, n: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """(K, m) weights: each of K soft lamps' factor at points p (m, 3) facing unit n (m, 3), 0 where it casts no
+    ray. A lamp giving a point a share of DRAWN_SHARE or more of the lamps' light casts its ray there, factor 1;
     the others share one ray, toward the lamp the point's number u (m,) in [0, 1) draws among them by their
     shares, factor 1 / its probability among them."""
     pdf = lamp_probabilities(lamps, p, n)

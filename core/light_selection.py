@@ -22,8 +22,9 @@ import numpy as np
 
 from .constants import SELECTION_LAMPS
 from .direct import DirectResult, direct_irradiance
-from .lamp_weights import WEIGHT_CHUNK, lamp_probabilities
+from .lamp_weights import lamp_probabilities, weight_chunks
 from .lights import AreaLight, PointLight, SpotLight
+
 
 def selectable_lamps(scene) -> tuple[tuple, tuple]:
     """(lamps drawn among, the other emitters): the point, spot and area lights that emit, when there are
@@ -44,9 +45,7 @@ def gathering_direct(scene, caster, p: np.ndarray, n: np.ndarray, rng: np.random
     if not lamps:
         return direct_irradiance(scene, caster, p, n, n, 1, rng)
     out = direct_irradiance(scene, caster, p, n, n, 1, rng, emitters=others)
-    step = max(1, WEIGHT_CHUNK // len(lamps))
-    for start in range(0, len(p), step):
-        rows = slice(start, start + step)
+    for rows in weight_chunks(len(p), len(lamps)):
         _add_selected(out.E[rows], out.shadow_rays, scene, caster, p[rows], n[rows], lamps, rng)
     return out
 

@@ -80,8 +80,9 @@ class Deviations:
     (core/light_selection.py)."""
     light_budget: bool = True
     """In scenes of BUDGET_LAMPS soft lamps or more (area lights, point and spot lights with a radius): a point's
-    soft shadow rays are shared among them by their unoccluded light there, about ``direct_samples`` in all,
-    instead of ``direct_samples`` per lamp (core/light_budget.py)."""
+    soft shadow rays are shared among them by their unoccluded light there, a lamp getting BUDGET_SCALE x
+    ``direct_samples`` x its share (at least 1, at most ``direct_samples``), and a footprint point's lamps under
+    DRAWN_SHARE share one drawn ray, instead of rays to every lamp (core/light_budget.py)."""
     nearest_photon_fallback: bool = True
     """Pass 3: a gathering hit no record accepts takes the nearest visible photon's irradiance."""
     fallback_empty_disc: bool = True

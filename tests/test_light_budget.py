@@ -8,8 +8,8 @@ import pytest
 
 from pdic.core.constants import BUDGET_LAMPS, BUDGET_SCALE
 from pdic.core.direct import direct_irradiance
-from pdic.core.lamp_weights import lamp_probabilities
-from pdic.core.light_budget import budgeted_lamps, group_draws, sample_counts, soft_lamp
+from pdic.core.lamp_weights import lamp_probabilities, soft_lamp
+from pdic.core.light_budget import budgeted_lamps, group_draws, sample_counts
 from pdic.core.lights import AreaLight, PointLight
 from pdic.core.pipeline import bake
 from pdic.core.rays import RayCaster
