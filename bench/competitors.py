@@ -90,6 +90,9 @@ SCENES = {
     # the building with its two lamps replaced by 64 of the same total power (deviation light-selection)
     "occluded64": SceneSpec("Occluded building with 64 lamps, 16 texels/m", "occluded_lamps", 0, 16.0, (4, 16, 64),
                             64, (7.5, 1.2, 0.0), optional=True),
+    # the building lit by 16 ceiling panels (area lights) of the same total power (deviation light-budget)
+    "occluded16area": SceneSpec("Occluded building with 16 ceiling panels, 16 texels/m", "occluded_panels", 0, 16.0,
+                                (4, 16, 64), 64, (7.5, 1.2, 0.0), optional=True),
     # the floor at the base of an arcade column beside the east light
     "sponza16": SceneSpec("Sponza, 16 texels/m", "sponza", 0, 16.0, (4, 16, 64), 128, (6.5, 2.3, 0.09)),
     "sponza8": SceneSpec("Sponza, 8 texels/m", "sponza", 0, 8.0, (4, 16, 64), 64, (6.5, 2.3, 0.09), optional=True),
@@ -213,7 +216,8 @@ def load_scene(spec: SceneSpec, work: Path):
     from pdic.pdic_addon.job import BakeJob
 
     loader = {"cornell": bench_scenes.load_cornell, "sponza": bench_scenes.load_sponza,
-              "occluded": bench_scenes.load_occluded, "occluded_lamps": bench_scenes.load_occluded_lamps}[spec.loader]
+              "occluded": bench_scenes.load_occluded, "occluded_lamps": bench_scenes.load_occluded_lamps,
+              "occluded_panels": bench_scenes.load_occluded_panels}[spec.loader]
     obj = join(loader())
     settings = preset("FINAL", texel_density=spec.texel_density)
     obj.pdic.resolution = spec.resolution or bench_scenes.area_resolution(obj, settings)

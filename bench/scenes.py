@@ -118,6 +118,38 @@ def load_occluded_lamps(count: int = 64) -> list:
     return load_occluded([(f"Lamp{i:02d}", location, watts) for i, location in enumerate(places[:count])])
 
 
+PANEL_PLACES = (
+    # under the mid-level floor (3 m): room 1, room 2 beside its light well, room 3 under the gallery
+    (1.5, 1.5, 2.97), (4.5, 1.5, 2.97), (1.5, 4.5, 2.97), (4.5, 4.5, 2.97), (9.0, 0.8, 2.97), (9.0, 5.2, 2.97),
+    (14.0, 4.5, 2.97), (16.5, 4.5, 2.97),
+    # under the roof (6 m): both storeys' upper rooms, over the light well and the gallery
+    (1.5, 3.0, 5.97), (4.5, 3.0, 5.97), (7.5, 1.0, 5.97), (9.0, 3.0, 5.97), (10.5, 5.0, 5.97), (13.5, 1.5, 5.97),
+    (15.0, 3.0, 5.97), (16.5, 4.5, 5.97))
+"""Where :func:`load_occluded_panels` hangs its ceiling panels: 3 cm under a ceiling, 0.25 m or more clear of
+walls and column tops, eight per storey (the lower storey only where the mid-level floor covers it)."""
+PANEL_SIZE = 0.5
+"""Side of :func:`load_occluded_panels`' square area lights, m."""
+
+
+def load_occluded_panels(count: int = len(PANEL_PLACES)) -> list:
+    """:func:`load_occluded` lit by ``count`` square area lights (``PANEL_SIZE``, facing down) under its
+    ceilings instead of its two 800 W point lamps, the same total power: soft lamps, which share their shadow
+    rays (deviation light-budget), as a level lit by ceiling panels is."""
+    if not 1 <= count <= len(PANEL_PLACES):
+        raise ValueError(f"load_occluded_panels: count must be 1-{len(PANEL_PLACES)}, got {count}")
+    objects = load_occluded(lamps=())
+    watts = sum(w for _, _, w in OCCLUDED_LAMPS) / count
+    for i, location in enumerate(PANEL_PLACES[:count]):
+        data = bpy.data.lights.new(f"Panel{i:02d}", "AREA")
+        data.energy = watts
+        data.shape = "SQUARE"
+        data.size = PANEL_SIZE
+        light = bpy.data.objects.new(data.name, data)
+        light.location = location  # an area light faces -Z unrotated
+        bpy.context.scene.collection.objects.link(light)
+    return objects
+
+
 # --------------------------------------------------------------------------- to the core
 def area_resolution(obj, settings, tris=None) -> int:
     """The light-map side ``settings`` give ``obj``'s world surface area (``tris``: its
@@ -192,4 +224,5 @@ def triangles(scene) -> int:
     return int(scene.geometry.count)
 
 
-__all__ = ["load_cornell", "load_sponza", "load_occluded", "load_occluded_lamps", "prepare", "extract_lightmap_uv", "np"]
+__all__ = ["load_cornell", "load_sponza", "load_occluded", "load_occluded_lamps", "load_occluded_panels", "prepare",
+           "extract_lightmap_uv", "np"]

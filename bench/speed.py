@@ -33,8 +33,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 WORK = ROOT / "bench" / "results" / "speed"
 SCENES = ("cornell256", "occluded", "sponza16", "sponza2048")
-OPTIONAL_SCENES = ("occluded64",)
-"""Scenes baked only when named: the building lit by 64 lamps (bench/competitors.py)."""
+OPTIONAL_SCENES = ("occluded64", "occluded16area")
+"""Scenes baked only when named: the building lit by 64 lamps, and by 16 ceiling panels (bench/competitors.py)."""
 QUALITIES = ("FINAL", "PREVIEW")
 
 

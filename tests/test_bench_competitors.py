@@ -249,3 +249,29 @@ def test_cycles_coverage_leaves_out_centres_on_a_charts_edge_that_pdic_bakes(tmp
     finally:
         bpy.data.objects.remove(obj)
         bpy.data.meshes.remove(mesh)
+
+
+def test_the_panel_lit_building_hangs_its_panels_just_under_ceilings_clear_of_walls(blender):
+    """bench/scenes.py's PANEL_PLACES: each panel 3 cm under a ceiling (its light all below it), a panel's half
+    side and more clear of walls and column tops, the building's 1,600 W shared out among the panels."""
+    from mathutils import Vector
+
+    from pdic.bench import scenes as bench_scenes
+
+    bench_scenes.load_occluded_panels()
+    lights = [o for o in blender.context.scene.objects if o.type == "LIGHT"]
+    assert len(lights) == len(bench_scenes.PANEL_PLACES) == 16
+    assert all(o.data.type == "AREA" and o.data.shape == "SQUARE" for o in lights)
+    assert sum(o.data.energy for o in lights) == pytest.approx(sum(w for _, _, w in bench_scenes.OCCLUDED_LAMPS))
+    depsgraph = blender.context.evaluated_depsgraph_get()
+    sideways = [Vector((np.cos(a), np.sin(a), 0.0)) for a in np.linspace(0, 2 * np.pi, 16, endpoint=False)]
+    for light in lights:
+        origin = light.location.copy()
+        up = blender.context.scene.ray_cast(depsgraph, origin, Vector((0, 0, 1)))
+        assert up[0] and up[1].z - origin.z == pytest.approx(0.03, abs=1e-4), light.name
+        down = blender.context.scene.ray_cast(depsgraph, origin, Vector((0, 0, -1)))
+        assert down[0] and origin.z - down[1].z > 2.5, light.name
+        for d in sideways:
+            # 0.25 m past the panel's edge along its axes (a room 2 column top lies just that far)
+            hit = blender.context.scene.ray_cast(depsgraph, origin, d, distance=bench_scenes.PANEL_SIZE - 1e-3)
+            assert not hit[0], (light.name, tuple(d))
