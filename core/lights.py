@@ -568,28 +568,63 @@ def _area(light: "AreaLight", caster, p, n_s, n_g, samples, rng):
     N = unit(np.asarray(light.normal, np.float64)[None])[0]
     U = unit(np.asarray(light.axis_u, np.float64)[None])[0]
     V = unit(np.asarray(light.axis_v, np.float64)[None])[0]
-    # In front of the emitting side, and some corner of the bounding rectangle above the surface.
-    front = _dot(p - c, N) > 0
     corners = c + np.array([[a * su / 2, b * sv / 2] for a in (-1, 1) for b in (-1, 1)]) @ np.stack([U, V])
-    to_corner = corners[None, :, :] - p[:, None, :]
-    above = np.any(_dot(n_g[:, None, :], to_corner) > 0, axis=1) & np.any(_dot(n_s[:, None, :], to_corner) > 0, axis=1)
-    idx = np.flatnonzero(front & above)
+    idx = np.flatnonzero(area_facing(p, n_s, n_g, c, N, corners))
     pk, nsk, ngk = (np.take(v, idx, axis=0) for v in (p, n_s, n_g))
     u = sampling.stratified_2d(len(idx), samples, rng)
     if light.shape in ("DISK", "ELLIPSE"):
         xy, pdf_area = sampling.uniform_ellipse(u, su, sv)
     else:
         xy, pdf_area = sampling.uniform_rectangle(u, su, sv)
+    # Points are in front of the light, so its normal N points toward them: the targets lift along it
+    # (_lift_off_emitter). The area density is the same over the whole light.
+    pdf = float(pdf_area.flat[0]) if pdf_area.size else 1.0
+    targets, weight, ok = area_samples(xy, pk, nsk, ngk, c, N, U, V, pdf, 2.0 * caster.epsilon)
+    return _samples("area", light.name, caster, idx, p, n_g, targets, weight, ok, L, samples)
+
+
+def area_facing(p: np.ndarray, n_s: np.ndarray, n_g: np.ndarray, c, N, corners: np.ndarray) -> np.ndarray:
+    """(n,) bool: points p (n, 3) in front of an area light's emitting side (centre c, normal N) with some corner of
+    its bounding rectangle (``corners`` (4, 3)) above both normals n_s, n_g: the points its samples may light.
+    Compiled where the kernels load (the same bits), else :func:`area_facing_numpy`."""
+    lib = native_kernels.library()
+    if lib is not None:
+        return native_kernels.area_facing(lib, p, n_s, n_g, c, N, corners)
+    return area_facing_numpy(p, n_s, n_g, c, N, corners)
+
+
+def area_facing_numpy(p, n_s, n_g, c, N, corners) -> np.ndarray:
+    """:func:`area_facing` in numpy (the compiled kernel's reference); dot products summed left to right."""
+    front = dots(p - c, N) > 0
+    to_corner = corners[None, :, :] - p[:, None, :]
+    above = np.any(dots(n_g[:, None, :], to_corner) > 0, axis=1) & np.any(dots(n_s[:, None, :], to_corner) > 0, axis=1)
+    return front & above
+
+
+def area_samples(xy: np.ndarray, pk: np.ndarray, nsk: np.ndarray, ngk: np.ndarray, c, N, U, V, pdf_area: float,
+                 lift: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(targets (k, m, 3), weight (k, m), ok (k, m)) of an area light's samples: the points ``xy`` (k, m, 2) in its
+    plane (centre c, unit normal N toward the receivers, axes U, V) of constant area density ``pdf_area``, seen from
+    points pk with normals nsk, ngk (k, 3): weight cos_s cos_l / (d^2 pdf_area) where the sample lies above both
+    normals and the receiver before the light's face, targets lifted ``lift`` along N (:func:`_lift_off_emitter`).
+    Compiled where the kernels load (the same bits), else :func:`area_samples_numpy`."""
+    lib = native_kernels.library()
+    if lib is not None:
+        return native_kernels.area_samples(lib, xy, pk, nsk, ngk, c, N, U, V, pdf_area, lift)
+    return area_samples_numpy(xy, pk, nsk, ngk, c, N, U, V, pdf_area, lift)
+
+
+def area_samples_numpy(xy, pk, nsk, ngk, c, N, U, V, pdf_area: float, lift: float) -> tuple:
+    """:func:`area_samples` in numpy (the compiled kernel's reference); dot products summed left to right."""
     q = c + xy[..., 0:1] * U + xy[..., 1:2] * V
     w = q - pk[:, None, :]
     d = norms(w)
     w = np.divide(w, d[..., None], out=np.zeros_like(w), where=d[..., None] > 0)
-    cos_s = _dot(nsk[:, None, :], w)
-    cos_l = -_dot(w, N)
-    ok = (d > 0) & (cos_s > 0) & (cos_l > 0) & (_dot(ngk[:, None, :], w) > 0)
+    cos_s = dots(nsk[:, None, :], w)
+    cos_l = -dots(w, N)
+    ok = (d > 0) & (cos_s > 0) & (cos_l > 0) & (dots(ngk[:, None, :], w) > 0)
     weight = np.divide(cos_s * cos_l, d * d * pdf_area, out=np.zeros_like(d), where=ok)
-    # Points are in front of the light, so its normal N points toward them.
-    return _samples("area", light.name, caster, idx, p, n_g, _lift_off_emitter(q, N, caster), weight, ok, L, samples)
+    return q + lift * N, weight, ok
 
 
 

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-VERSION = 10
+VERSION = 11
 """The C library's ``pdic_native_version()`` this module calls; a library of another version is not used."""
 NATIVE_DIR = Path(__file__).resolve().parent / "native"
 SUFFIX = {"linux": ".so", "windows": ".dll", "macos": ".dylib"}
@@ -100,6 +100,10 @@ def _declare(lib) -> None:
     lib.pdic_hit_cells.restype = None
     lib.pdic_hit_cells.argtypes = ([_PTR] * 5 + [_I64] + [_PTR] * 3 + [_I64] + [_PTR] * 2 + [_I64] * 2
                                    + [_F64, _PTR] + [_F64] * 4 + [_PTR] * 7)
+    lib.pdic_area_facing.restype = None
+    lib.pdic_area_facing.argtypes = [_PTR] * 3 + [_I64] + [_PTR] * 4
+    lib.pdic_area_samples.restype = None
+    lib.pdic_area_samples.argtypes = [_PTR] * 4 + [_I64] * 2 + [_PTR] * 4 + [_F64] * 2 + [_PTR] * 3
     lib.pdic_cell_bytes.restype = _I64
     lib.pdic_cell_bytes.argtypes = []
 
@@ -299,6 +303,30 @@ def point_light_rays(lib, p, n_s, n_g, c, epsilon: float) -> tuple:
     k = lib.pdic_point_light_rays(_ptr(p), _ptr(n_s), _ptr(n_g), m, _ptr(c), float(epsilon), _ptr(rows), _ptr(weight),
                                   _ptr(start), _ptr(directions), _ptr(t_max), _ptr(lit))
     return rows[:k], weight[:k], start[:k], directions[:k], t_max[:k], lit[:k].view(bool)
+
+
+def area_facing(lib, p, n_s, n_g, c, N, corners) -> np.ndarray:
+    """:func:`core.lights.area_facing_numpy` in C: the same (n,) bool."""
+    p, n_s, n_g, corners = _f64(p), _f64(n_s), _f64(n_g), _f64(corners)
+    c, N = (_f64(np.broadcast_to(np.asarray(v, np.float64), (3,))) for v in (c, N))
+    if n_s.shape != p.shape or n_g.shape != p.shape or corners.shape != (4, 3):
+        raise ValueError(f"area_facing: points {p.shape}, normals {n_s.shape}, {n_g.shape}, corners {corners.shape}")
+    facing = np.empty(len(p), np.uint8)
+    lib.pdic_area_facing(_ptr(p), _ptr(n_s), _ptr(n_g), len(p), _ptr(c), _ptr(N), _ptr(corners), _ptr(facing))
+    return facing.view(bool)
+
+
+def area_samples(lib, xy, pk, nsk, ngk, c, N, U, V, pdf_area: float, lift: float) -> tuple:
+    """:func:`core.lights.area_samples_numpy` in C: the same (targets (k, m, 3), weight (k, m), ok (k, m))."""
+    xy, pk, nsk, ngk = _f64(xy), _f64(pk), _f64(nsk), _f64(ngk)
+    c, N, U, V = (_f64(np.broadcast_to(np.asarray(v, np.float64), (3,))) for v in (c, N, U, V))
+    k, m = xy.shape[0], xy.shape[1]
+    if pk.shape != (k, 3) or nsk.shape != (k, 3) or ngk.shape != (k, 3) or xy.shape != (k, m, 2):
+        raise ValueError(f"area_samples: xy {xy.shape} and points {pk.shape}, {nsk.shape}, {ngk.shape} disagree")
+    targets, weight, ok = np.empty((k, m, 3)), np.empty((k, m)), np.empty((k, m), np.uint8)
+    lib.pdic_area_samples(_ptr(xy), _ptr(pk), _ptr(nsk), _ptr(ngk), k, m, _ptr(c), _ptr(N), _ptr(U), _ptr(V),
+                          float(pdf_area), float(lift), _ptr(targets), _ptr(weight), _ptr(ok))
+    return targets, weight, ok.view(bool)
 
 
 def hit_cells(lib, caster, grid, triangle, barycentric, q, direction, distance, gap_tests):
@@ -524,7 +552,27 @@ def _self_check_lights(lib, rng) -> str | None:
     want = point_light_rays_numpy(p, n_s, n_g, c, 1e-3)
     if not all(np.array_equal(x, y) for x, y in zip(want, point_light_rays(lib, p, n_s, n_g, c, 1e-3))):
         return "point light rays differ"
-    return _self_check_hits(lib, rng) or _self_check_morton(lib, rng)
+    return _self_check_area(lib, rng) or _self_check_hits(lib, rng) or _self_check_morton(lib, rng)
+
+
+def _self_check_area(lib, rng) -> str | None:
+    from .lights import area_facing_numpy, area_samples_numpy
+
+    k, m = 200, 16
+    pk = rng.normal(size=(k, 3))
+    nsk, ngk = (v / np.linalg.norm(v, axis=1, keepdims=True) for v in rng.normal(size=(2, k, 3)))
+    xy = rng.uniform(-0.5, 0.5, size=(k, m, 2))
+    xy[0, 0] = 0.0  # a sample at the light's centre, which pk[0] is put on: d = 0
+    c, N = np.array([0.2, 0.1, 1.5]), np.array([0.0, 0.0, -1.0])
+    pk[0] = c
+    want = area_samples_numpy(xy, pk, nsk, ngk, c, N, np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), 4.0, 2e-3)
+    got = area_samples(lib, xy, pk, nsk, ngk, c, N, np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), 4.0, 2e-3)
+    if not all(_same_bits(x, y) for x, y in zip(want, got)):
+        return "area light samples differ"
+    corners = c + rng.uniform(-0.5, 0.5, size=(4, 3)) * [1.0, 1.0, 0.0]
+    if not _same_bits(area_facing_numpy(pk, nsk, ngk, c, N, corners), area_facing(lib, pk, nsk, ngk, c, N, corners)):
+        return "area light facing points differ"
+    return None
 
 
 def _self_check_morton(lib, rng) -> str | None:

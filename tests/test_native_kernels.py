@@ -22,7 +22,7 @@ from pdic.core.settings import preset
 from pdic.core.vectors import dots
 from pdic.core.zone_grid import ZoneGrid, morton_keys_numpy, spatial_order
 
-from scenes import box_on_ground, lamp_box
+from scenes import box_faces, box_on_ground, lamp_box, quad_scene
 
 LIB = native_kernels.library()
 
@@ -302,6 +302,55 @@ def test_record_walls_equal_numpy():
         native_kernels.pair_walls(LIB, rows, records, p, p_k, n_k, wall[:, :5], reach)
     with pytest.raises(ValueError, match="float32"):
         native_kernels.pair_walls(LIB, rows, records, p, p_k, n_k, wall.astype(np.float64), reach)
+
+
+def _area_inputs(rng, k: int = 400, m: int = 16):
+    """Receivers spread over decades around an area light 1.5 m up facing down (some behind it, one at its
+    centre, one not a number), their normals random, samples over its square."""
+    pk = rng.normal(size=(k, 3)) * np.exp(rng.uniform(-6, 4, size=(k, 1)))
+    nsk, ngk = (v / np.linalg.norm(v, axis=1, keepdims=True) for v in rng.normal(size=(2, k, 3)))
+    c, N = np.array([0.2, 0.1, 1.5]), np.array([0.0, 0.0, -1.0])
+    pk[0], pk[1] = c, np.nan
+    xy = rng.uniform(-0.25, 0.25, size=(k, m, 2))
+    xy[0, 0] = 0.0  # a sample on the receiver itself: d = 0
+    corners = c + np.array([[a, b, 0.0] for a in (-0.25, 0.25) for b in (-0.25, 0.25)])
+    return pk, nsk, ngk, xy, c, N, corners
+
+
+def test_area_light_samples_and_facing_points_equal_numpy():
+    from pdic.core.lights import area_facing_numpy, area_samples_numpy
+
+    pk, nsk, ngk, xy, c, N, corners = _area_inputs(np.random.default_rng(7))
+    U, V = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
+    want = area_samples_numpy(xy, pk, nsk, ngk, c, N, U, V, 16.0, 2e-4)
+    got = native_kernels.area_samples(LIB, xy, pk, nsk, ngk, c, N, U, V, 16.0, 2e-4)
+    for a, b in zip(want, got):
+        assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=a.dtype.kind == "f")
+    assert 0 < want[2].sum() < want[2].size  # some samples light their point, some do not
+    facing = area_facing_numpy(pk, nsk, ngk, c, N, corners)
+    assert np.array_equal(facing, native_kernels.area_facing(LIB, pk, nsk, ngk, c, N, corners))
+    assert 0 < facing.sum() < len(facing)
+    with pytest.raises(ValueError, match="disagree"):
+        native_kernels.area_samples(LIB, xy[:-1], pk, nsk, ngk, c, N, U, V, 16.0, 2e-4)
+
+
+def test_an_area_lit_bake_with_the_library_equals_one_without_to_the_bit(monkeypatch):
+    from pdic.core import scene as sc
+
+    panel = sc.AreaLight("panel", np.array([0.5, 0.5, 0.95]), np.array([0, 0, -1.0]), np.array([1.0, 0, 0]),
+                         np.array([0, 1.0, 0]), 0.3, 0.2, "RECTANGLE", np.full(3, 40.0))
+
+    def scene():
+        return quad_scene(box_faces(), {"floor": (0, 16), "back": (1, 16)}, [panel])
+
+    settings = preset("FINAL", photons=6000, max_bounces=4, threads=2, hemisphere_theta=6, hemisphere_phi=12)
+    compiled = bake(scene(), settings)
+    monkeypatch.setattr(native_kernels, "library", lambda: None)
+    numpy_only = bake(scene(), settings)
+    assert compiled.stats["counters"]["shadow_rays_area"] > 0
+    for target, E in compiled.lightmaps.items():
+        assert E[..., :3].max() > 0
+        assert np.array_equal(E, numpy_only.lightmaps[target]), target
 
 
 def test_dots_sum_left_to_right():

@@ -27,7 +27,7 @@
 #define PDIC_FOUR_PI 12.566370614359172
 
 /* Bumped whenever a signature changes: core/native_kernels.py refuses a library of another version. */
-PDIC_EXPORT int64_t pdic_native_version(void) { return 10; }
+PDIC_EXPORT int64_t pdic_native_version(void) { return 11; }
 
 /* core.zone_grid.ZoneGrid.pairs: every (point, record) with |q - p_k|^2 <= zone_k^2, points in order,
  * each point's cell entries in order. Dense cell table: first (n_cells + 1), else the sorted occupied
@@ -323,6 +323,56 @@ PDIC_EXPORT int64_t pdic_point_light_rays(const double *p, const double *n_s, co
         ++k;
     }
     return k;
+}
+
+/* core.lights.area_facing_numpy: points p in front of an area light (centre c, normal N) with some corner of its
+ * rectangle (corners (4, 3)) above both normals n_s, n_g. Dot products left to right, as core.vectors.dots. */
+PDIC_EXPORT void pdic_area_facing(const double *p, const double *n_s, const double *n_g, int64_t n, const double *c,
+                                  const double *N, const double *corners, uint8_t *facing) {
+    for (int64_t i = 0; i < n; ++i) {
+        const double *x = p + 3 * i, *s = n_s + 3 * i, *g = n_g + 3 * i;
+        double f[3] = {x[0] - c[0], x[1] - c[1], x[2] - c[2]};
+        int front = ((f[0] * N[0] + f[1] * N[1]) + f[2] * N[2]) > 0.0;
+        int above_g = 0, above_s = 0;
+        for (int k = 0; k < 4; ++k) {
+            double t[3] = {corners[3 * k] - x[0], corners[3 * k + 1] - x[1], corners[3 * k + 2] - x[2]};
+            above_g |= ((g[0] * t[0] + g[1] * t[1]) + g[2] * t[2]) > 0.0;
+            above_s |= ((s[0] * t[0] + s[1] * t[1]) + s[2] * t[2]) > 0.0;
+        }
+        facing[i] = (uint8_t)(front && above_g && above_s);
+    }
+}
+
+/* core.lights.area_samples_numpy: an area light's samples xy (k, m, 2) in its plane (centre c, normal N toward the
+ * receivers, axes U, V; constant area density pdf) seen from points pk with normals nsk, ngk (k, 3). Per sample:
+ * target q + lift N, weight cos_s cos_l / (d^2 pdf) where ok, ok = d > 0, cos_s > 0, cos_l > 0 and above n_g.
+ * Dot products left to right, as core.vectors.dots; every operation in numpy's order. */
+PDIC_EXPORT void pdic_area_samples(const double *xy, const double *pk, const double *nsk, const double *ngk,
+                                   int64_t k, int64_t m, const double *c, const double *N, const double *U,
+                                   const double *V, double pdf, double lift, double *targets, double *weight,
+                                   uint8_t *ok) {
+    for (int64_t i = 0; i < k; ++i) {
+        const double *x = pk + 3 * i, *s = nsk + 3 * i, *g = ngk + 3 * i;
+        for (int64_t j = 0; j < m; ++j) {
+            int64_t r = i * m + j;
+            double a = xy[2 * r], b = xy[2 * r + 1];
+            double q[3], w[3];
+            for (int e = 0; e < 3; ++e) {
+                q[e] = (c[e] + a * U[e]) + b * V[e];
+                w[e] = q[e] - x[e];
+            }
+            double sq[3] = {w[0] * w[0], w[1] * w[1], w[2] * w[2]};
+            double d = sqrt((sq[0] + sq[1]) + sq[2]);
+            for (int e = 0; e < 3; ++e) w[e] = d > 0.0 ? w[e] / d : 0.0;
+            double cos_s = (s[0] * w[0] + s[1] * w[1]) + s[2] * w[2];
+            double cos_l = -((w[0] * N[0] + w[1] * N[1]) + w[2] * N[2]);
+            double cos_g = (g[0] * w[0] + g[1] * w[1]) + g[2] * w[2];
+            int good = d > 0.0 && cos_s > 0.0 && cos_l > 0.0 && cos_g > 0.0;
+            ok[r] = (uint8_t)good;
+            weight[r] = good ? (cos_s * cos_l) / ((d * d) * pdf) : 0.0;
+            for (int e = 0; e < 3; ++e) targets[3 * r + e] = q[e] + lift * N[e];
+        }
+    }
 }
 
 static inline double clip01(double v) { return v < 0.0 ? 0.0 : (v > 1.0 ? 1.0 : v); }
