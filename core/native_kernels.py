@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-VERSION = 11
+VERSION = 12
 """The C library's ``pdic_native_version()`` this module calls; a library of another version is not used."""
 NATIVE_DIR = Path(__file__).resolve().parent / "native"
 SUFFIX = {"linux": ".so", "windows": ".dll", "macos": ".dylib"}
@@ -100,6 +100,8 @@ def _declare(lib) -> None:
     lib.pdic_hit_cells.restype = None
     lib.pdic_hit_cells.argtypes = ([_PTR] * 5 + [_I64] + [_PTR] * 3 + [_I64] + [_PTR] * 2 + [_I64] * 2
                                    + [_F64, _PTR] + [_F64] * 4 + [_PTR] * 7)
+    lib.pdic_shadow_segments.restype = None
+    lib.pdic_shadow_segments.argtypes = [_PTR] * 3 + [_I64, _F64] + [_PTR] * 4
     lib.pdic_area_facing.restype = None
     lib.pdic_area_facing.argtypes = [_PTR] * 3 + [_I64] + [_PTR] * 4
     lib.pdic_area_samples.restype = None
@@ -303,6 +305,20 @@ def point_light_rays(lib, p, n_s, n_g, c, epsilon: float) -> tuple:
     k = lib.pdic_point_light_rays(_ptr(p), _ptr(n_s), _ptr(n_g), m, _ptr(c), float(epsilon), _ptr(rows), _ptr(weight),
                                   _ptr(start), _ptr(directions), _ptr(t_max), _ptr(lit))
     return rows[:k], weight[:k], start[:k], directions[:k], t_max[:k], lit[:k].view(bool)
+
+
+def shadow_segments(lib, points, normals, targets, epsilon: float) -> tuple:
+    """:func:`core.rays.shadow_segments_numpy` in C for points with normals and targets without: the same (start,
+    directions, t_max, open)."""
+    points, normals = _f64(points), _f64(normals)
+    targets = _f64(np.broadcast_to(np.asarray(targets, np.float64), points.shape))
+    if points.ndim != 2 or points.shape[1] != 3 or normals.shape != points.shape:
+        raise ValueError(f"shadow_segments: points {points.shape} and normals {normals.shape} disagree")
+    m = len(points)
+    start, directions, t_max, open_ = np.empty((m, 3)), np.empty((m, 3)), np.empty(m), np.empty(m, np.uint8)
+    lib.pdic_shadow_segments(_ptr(points), _ptr(normals), _ptr(targets), m, float(epsilon), _ptr(start),
+                             _ptr(directions), _ptr(t_max), _ptr(open_))
+    return start, directions, t_max, open_.view(bool)
 
 
 def area_facing(lib, p, n_s, n_g, c, N, corners) -> np.ndarray:
@@ -525,7 +541,10 @@ def _self_check_cells(lib, rng) -> str | None:
 
 
 def _same_bits(x: np.ndarray, y: np.ndarray) -> bool:
-    """Equal float64 arrays to the bit, the sign of a zero included (np.array_equal takes -0.0 for 0.0)."""
+    """Equal float64 arrays to the bit, the sign of a zero included (np.array_equal takes -0.0 for 0.0); other
+    arrays (the kernels' flags) equal."""
+    if x.dtype != np.float64 or y.dtype != np.float64:
+        return x.dtype == y.dtype and np.array_equal(x, y)
     return x.shape == y.shape and np.array_equal(np.ascontiguousarray(x).view(np.uint64),
                                                  np.ascontiguousarray(y).view(np.uint64))
 
@@ -557,6 +576,7 @@ def _self_check_lights(lib, rng) -> str | None:
 
 def _self_check_area(lib, rng) -> str | None:
     from .lights import area_facing_numpy, area_samples_numpy
+    from .rays import shadow_segments_numpy
 
     k, m = 200, 16
     pk = rng.normal(size=(k, 3))
@@ -572,6 +592,13 @@ def _self_check_area(lib, rng) -> str | None:
     corners = c + rng.uniform(-0.5, 0.5, size=(4, 3)) * [1.0, 1.0, 0.0]
     if not _same_bits(area_facing_numpy(pk, nsk, ngk, c, N, corners), area_facing(lib, pk, nsk, ngk, c, N, corners)):
         return "area light facing points differ"
+    targets = want[0].reshape(-1, 3)
+    points, normals = np.repeat(pk, m, axis=0), np.repeat(nsk, m, axis=0)
+    targets[::37] = points[::37]  # zero-length segments
+    normals[::41] = np.cross(normals[::41], targets[::41] - points[::41])  # normals square to the segment
+    if not all(_same_bits(x, y) for x, y in zip(shadow_segments_numpy(points, normals, targets, 1e-3),
+                                               shadow_segments(lib, points, normals, targets, 1e-3))):
+        return "shadow segments differ"
     return None
 
 

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from embreex import mesh_construction, rtcore_scene
 
+from . import native_kernels
 from .constants import OFF_PLANE, TRANSPARENT_MAX_LAYERS
 from .executor import Executor, serial_executor
 from .scene import unit_face_normals
@@ -98,7 +99,18 @@ def shadow_segments(points: np.ndarray, normals: np.ndarray | None, targets: np.
     """The rays :meth:`RayCaster.transmittance_between` casts from points to targets (n, 3): (start (n, 3) each
     point pushed ``epsilon`` off its surface toward its target, directions (n, 3) unit (0 for a zero-length
     segment), t_max (n,) the segment's length, less epsilon when the target has no normal, at least 0,
-    open (n,) bool: a positive length). A target with a normal is pushed off its surface as well."""
+    open (n,) bool: a positive length). A target with a normal is pushed off its surface as well.
+    Compiled where the kernels load and the points have normals and the targets none (the soft emitters' shadow
+    rays: the same bits), else :func:`shadow_segments_numpy`."""
+    lib = native_kernels.library() if normals is not None and target_normals is None else None
+    if lib is not None:
+        return native_kernels.shadow_segments(lib, points, normals, targets, epsilon)
+    return shadow_segments_numpy(points, normals, targets, epsilon, target_normals)
+
+
+def shadow_segments_numpy(points: np.ndarray, normals: np.ndarray | None, targets: np.ndarray, epsilon: float,
+                          target_normals: np.ndarray | None = None) -> tuple:
+    """:func:`shadow_segments` in numpy (the compiled kernel's reference)."""
     points = np.asarray(points, dtype=np.float64)
     targets = np.asarray(targets, dtype=np.float64)
     toward = _unit(targets - points)

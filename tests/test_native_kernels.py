@@ -334,6 +334,26 @@ def test_area_light_samples_and_facing_points_equal_numpy():
         native_kernels.area_samples(LIB, xy[:-1], pk, nsk, ngk, c, N, U, V, 16.0, 2e-4)
 
 
+def test_shadow_segments_equal_numpy():
+    from pdic.core.rays import shadow_segments_numpy
+
+    rng = np.random.default_rng(11)
+    points = rng.normal(size=(3000, 3)) * np.exp(rng.uniform(-8, 6, size=(3000, 1)))
+    normals = rng.normal(size=(3000, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    targets = rng.normal(size=(3000, 3)) * 3.0
+    targets[::50] = points[::50]  # zero-length segments
+    normals[1::50] = np.cross(normals[1::50], targets[1::50] - points[1::50])  # normals square to the segment
+    points[2::97] = np.nan
+    want = shadow_segments_numpy(points, normals, targets, 1e-3)
+    got = native_kernels.shadow_segments(LIB, points, normals, targets, 1e-3)
+    for a, b in zip(want, got):
+        assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=a.dtype.kind == "f")
+        if a.dtype.kind == "f":  # the sign of a zero too
+            assert np.array_equal(np.signbit(a), np.signbit(b))
+    assert 0 < want[3].sum() < len(points)
+
+
 def test_an_area_lit_bake_with_the_library_equals_one_without_to_the_bit(monkeypatch):
     from pdic.core import scene as sc
 

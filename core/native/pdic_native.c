@@ -27,7 +27,7 @@
 #define PDIC_FOUR_PI 12.566370614359172
 
 /* Bumped whenever a signature changes: core/native_kernels.py refuses a library of another version. */
-PDIC_EXPORT int64_t pdic_native_version(void) { return 11; }
+PDIC_EXPORT int64_t pdic_native_version(void) { return 12; }
 
 /* core.zone_grid.ZoneGrid.pairs: every (point, record) with |q - p_k|^2 <= zone_k^2, points in order,
  * each point's cell entries in order. Dense cell table: first (n_cells + 1), else the sorted occupied
@@ -323,6 +323,36 @@ PDIC_EXPORT int64_t pdic_point_light_rays(const double *p, const double *n_s, co
         ++k;
     }
     return k;
+}
+
+/* core.rays.shadow_segments_numpy without target normals: from points p (normals n) to targets t, each point
+ * pushed epsilon along +-n to the side its target lies on (sign of n . toward, 0 read as +1, NaN kept), the unit
+ * direction of the pushed segment (0 for a zero-length one), its length less epsilon (at least 0; NaN kept) and
+ * whether it has a length. Dot products and lengths summed left to right, as core.vectors.dots and norms. */
+PDIC_EXPORT void pdic_shadow_segments(const double *p, const double *n, const double *t, int64_t m, double epsilon,
+                                      double *start_out, double *dir_out, double *t_max_out, uint8_t *open_out) {
+    for (int64_t i = 0; i < m; ++i) {
+        const double *x = p + 3 * i, *nx = n + 3 * i, *y = t + 3 * i;
+        double v[3] = {y[0] - x[0], y[1] - x[1], y[2] - x[2]};
+        double sq[3] = {v[0] * v[0], v[1] * v[1], v[2] * v[2]};
+        double length = sqrt((sq[0] + sq[1]) + sq[2]);
+        double toward[3];
+        for (int a = 0; a < 3; ++a) toward[a] = length > 0.0 ? v[a] / length : 0.0;
+        double facing = (nx[0] * toward[0] + nx[1] * toward[1]) + nx[2] * toward[2];
+        double side = facing > 0.0 ? 1.0 : (facing < 0.0 ? -1.0 : (facing == 0.0 ? 1.0 : facing));
+        double push = epsilon * side, seg[3];
+        for (int a = 0; a < 3; ++a) {
+            double start = x[a] + push * nx[a];
+            start_out[3 * i + a] = start;
+            seg[a] = y[a] - start;
+        }
+        double sq2[3] = {seg[0] * seg[0], seg[1] * seg[1], seg[2] * seg[2]};
+        double dist = sqrt((sq2[0] + sq2[1]) + sq2[2]);
+        for (int a = 0; a < 3; ++a) dir_out[3 * i + a] = dist > 0.0 ? seg[a] / dist : 0.0;
+        double t_max = dist - epsilon;
+        t_max_out[i] = (t_max != t_max || t_max >= 0.0) ? t_max : 0.0;  /* np.maximum(., 0): NaN stays */
+        open_out[i] = dist > 0.0;
+    }
 }
 
 /* core.lights.area_facing_numpy: points p in front of an area light (centre c, normal N) with some corner of its
