@@ -475,18 +475,35 @@ def _point_like(kind, light, attenuation, caster, p, n_s, n_g, samples, rng):
         # Lambertian disk facing the receiver: L = P / (4 pi^2 r^2), A = pi r^2, so
         # L cos_s cos_l / d^2 / pdf_A = P cos_s cos_l / (4 pi d^2).
         q, n_disk, _ = sampling.disk_facing(u, pk, c, r)
-        w = q - pk[:, None, :]
-        d = norms(w)
-        w = np.divide(w, d[..., None], out=np.zeros_like(w), where=d[..., None] > 0)
-        cos_s = _dot(nsk[:, None, :], w)
-        cos_l = -_dot(n_disk[:, None, :], w)
-        ok = (d > 0) & (cos_s > 0) & (_dot(ngk[:, None, :], w) > 0) & (cos_l > 0)
-        f = attenuation(-w) if attenuation is not None else 1.0
-        weight = np.divide(f * cos_s * cos_l, 4.0 * np.pi * d * d, out=np.zeros_like(d), where=ok)
-        ok &= weight > 0
+        weight, ok = disk_samples(q, pk, nsk, ngk, n_disk, attenuation)
         return _samples(kind, light.name, caster, idx, p, n_g, q, weight, ok, P, samples)
     weight, ok, targets = _sphere_samples(u, pk, nsk, ngk, D[idx], c, r, attenuation)
     return _samples(kind, light.name, caster, idx, p, n_g, targets, weight, ok, P, samples)
+
+
+def disk_samples(q: np.ndarray, pk: np.ndarray, nsk: np.ndarray, ngk: np.ndarray, n_disk: np.ndarray,
+                 attenuation=None) -> tuple[np.ndarray, np.ndarray]:
+    """(weight (k, m), ok (k, m)) of a soft-falloff lamp's samples q (k, m, 3) on the disk facing each receiver
+    pk (k, 3) (normal n_disk (k, 3)) with normals nsk, ngk: f cos_s cos_l / (4 pi d^2) where the sample lies above
+    both normals and in front of the disk (f: the spot mask, 1 without ``attenuation``). Compiled for point lights
+    where the kernels load (the same bits), else :func:`disk_samples_numpy`."""
+    lib = native_kernels.library() if attenuation is None else None
+    if lib is not None:
+        return native_kernels.disk_samples(lib, q, pk, nsk, ngk, n_disk)
+    return disk_samples_numpy(q, pk, nsk, ngk, n_disk, attenuation)
+
+
+def disk_samples_numpy(q, pk, nsk, ngk, n_disk, attenuation=None) -> tuple:
+    """:func:`disk_samples` in numpy (the compiled kernel's reference); dot products summed left to right."""
+    w = q - pk[:, None, :]
+    d = norms(w)
+    w = np.divide(w, d[..., None], out=np.zeros_like(w), where=d[..., None] > 0)
+    cos_s = dots(nsk[:, None, :], w)
+    cos_l = -dots(n_disk[:, None, :], w)
+    ok = (d > 0) & (cos_s > 0) & (dots(ngk[:, None, :], w) > 0) & (cos_l > 0)
+    f = attenuation(-w) if attenuation is not None else 1.0
+    weight = np.divide(f * cos_s * cos_l, 4.0 * np.pi * d * d, out=np.zeros_like(d), where=ok)
+    return weight, ok & (weight > 0)
 
 
 def _sphere_samples(u, pk, nsk, ngk, D, c, r, attenuation):

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-VERSION = 12
+VERSION = 13
 """The C library's ``pdic_native_version()`` this module calls; a library of another version is not used."""
 NATIVE_DIR = Path(__file__).resolve().parent / "native"
 SUFFIX = {"linux": ".so", "windows": ".dll", "macos": ".dylib"}
@@ -100,6 +100,8 @@ def _declare(lib) -> None:
     lib.pdic_hit_cells.restype = None
     lib.pdic_hit_cells.argtypes = ([_PTR] * 5 + [_I64] + [_PTR] * 3 + [_I64] + [_PTR] * 2 + [_I64] * 2
                                    + [_F64, _PTR] + [_F64] * 4 + [_PTR] * 7)
+    lib.pdic_disk_samples.restype = None
+    lib.pdic_disk_samples.argtypes = [_PTR] * 5 + [_I64] * 2 + [_PTR] * 2
     lib.pdic_shadow_segments.restype = None
     lib.pdic_shadow_segments.argtypes = [_PTR] * 3 + [_I64, _F64] + [_PTR] * 4
     lib.pdic_area_facing.restype = None
@@ -305,6 +307,18 @@ def point_light_rays(lib, p, n_s, n_g, c, epsilon: float) -> tuple:
     k = lib.pdic_point_light_rays(_ptr(p), _ptr(n_s), _ptr(n_g), m, _ptr(c), float(epsilon), _ptr(rows), _ptr(weight),
                                   _ptr(start), _ptr(directions), _ptr(t_max), _ptr(lit))
     return rows[:k], weight[:k], start[:k], directions[:k], t_max[:k], lit[:k].view(bool)
+
+
+def disk_samples(lib, q, pk, nsk, ngk, n_disk) -> tuple:
+    """:func:`core.lights.disk_samples_numpy` in C without a spot mask: the same (weight (k, m), ok (k, m))."""
+    q, pk, nsk, ngk, n_disk = _f64(q), _f64(pk), _f64(nsk), _f64(ngk), _f64(n_disk)
+    k, m = q.shape[0], q.shape[1]
+    if q.shape != (k, m, 3) or any(v.shape != (k, 3) for v in (pk, nsk, ngk, n_disk)):
+        raise ValueError(f"disk_samples: samples {q.shape} and points {pk.shape}, {nsk.shape}, {ngk.shape}, "
+                         f"{n_disk.shape} disagree")
+    weight, ok = np.empty((k, m)), np.empty((k, m), np.uint8)
+    lib.pdic_disk_samples(_ptr(q), _ptr(pk), _ptr(nsk), _ptr(ngk), _ptr(n_disk), k, m, _ptr(weight), _ptr(ok))
+    return weight, ok.view(bool)
 
 
 def shadow_segments(lib, points, normals, targets, epsilon: float) -> tuple:
@@ -575,7 +589,7 @@ def _self_check_lights(lib, rng) -> str | None:
 
 
 def _self_check_area(lib, rng) -> str | None:
-    from .lights import area_facing_numpy, area_samples_numpy
+    from .lights import area_facing_numpy, area_samples_numpy, disk_samples_numpy
     from .rays import shadow_segments_numpy
 
     k, m = 200, 16
@@ -592,6 +606,10 @@ def _self_check_area(lib, rng) -> str | None:
     corners = c + rng.uniform(-0.5, 0.5, size=(4, 3)) * [1.0, 1.0, 0.0]
     if not _same_bits(area_facing_numpy(pk, nsk, ngk, c, N, corners), area_facing(lib, pk, nsk, ngk, c, N, corners)):
         return "area light facing points differ"
+    n_disk = -nsk[:, ::-1].copy()
+    if not all(_same_bits(x, y) for x, y in zip(disk_samples_numpy(want[0], pk, nsk, ngk, n_disk),
+                                               disk_samples(lib, want[0], pk, nsk, ngk, n_disk))):
+        return "disk lamp samples differ"
     targets = want[0].reshape(-1, 3)
     points, normals = np.repeat(pk, m, axis=0), np.repeat(nsk, m, axis=0)
     targets[::37] = points[::37]  # zero-length segments

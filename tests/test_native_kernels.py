@@ -334,6 +334,20 @@ def test_area_light_samples_and_facing_points_equal_numpy():
         native_kernels.area_samples(LIB, xy[:-1], pk, nsk, ngk, c, N, U, V, 16.0, 2e-4)
 
 
+def test_soft_falloff_lamp_samples_equal_numpy():
+    from pdic.core.lights import disk_samples_numpy
+
+    pk, nsk, ngk, xy, c, N, _ = _area_inputs(np.random.default_rng(9))
+    n_disk = np.cross(nsk, ngk)
+    q = pk[:, None, :] + np.concatenate([xy, xy[..., :1]], axis=2) * 4.0  # samples around each point, some on it
+    q[0, 0] = pk[0]
+    want = disk_samples_numpy(q, pk, nsk, ngk, n_disk)
+    got = native_kernels.disk_samples(LIB, q, pk, nsk, ngk, n_disk)
+    for a, b in zip(want, got):
+        assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=a.dtype.kind == "f")
+    assert 0 < want[1].sum() < want[1].size
+
+
 def test_shadow_segments_equal_numpy():
     from pdic.core.rays import shadow_segments_numpy
 
@@ -354,20 +368,23 @@ def test_shadow_segments_equal_numpy():
     assert 0 < want[3].sum() < len(points)
 
 
-def test_an_area_lit_bake_with_the_library_equals_one_without_to_the_bit(monkeypatch):
+@pytest.mark.parametrize("kind", ["area", "soft point"])
+def test_a_soft_lit_bake_with_the_library_equals_one_without_to_the_bit(monkeypatch, kind):
     from pdic.core import scene as sc
 
-    panel = sc.AreaLight("panel", np.array([0.5, 0.5, 0.95]), np.array([0, 0, -1.0]), np.array([1.0, 0, 0]),
-                         np.array([0, 1.0, 0]), 0.3, 0.2, "RECTANGLE", np.full(3, 40.0))
+    lamp = (sc.AreaLight("panel", np.array([0.5, 0.5, 0.95]), np.array([0, 0, -1.0]), np.array([1.0, 0, 0]),
+                         np.array([0, 1.0, 0]), 0.3, 0.2, "RECTANGLE", np.full(3, 40.0)) if kind == "area"
+            else sc.PointLight("bulb", np.array([0.5, 0.5, 0.8]), np.full(3, 100.0), 0.1))
 
     def scene():
-        return quad_scene(box_faces(), {"floor": (0, 16), "back": (1, 16)}, [panel])
+        return quad_scene(box_faces(), {"floor": (0, 16), "back": (1, 16)}, [lamp])
 
     settings = preset("FINAL", photons=6000, max_bounces=4, threads=2, hemisphere_theta=6, hemisphere_phi=12)
     compiled = bake(scene(), settings)
     monkeypatch.setattr(native_kernels, "library", lambda: None)
     numpy_only = bake(scene(), settings)
-    assert compiled.stats["counters"]["shadow_rays_area"] > 0
+    assert compiled.stats["kernels"].startswith("compiled")
+    assert compiled.stats["counters"]["shadow_rays_area" if kind == "area" else "shadow_rays_point"] > 1000
     for target, E in compiled.lightmaps.items():
         assert E[..., :3].max() > 0
         assert np.array_equal(E, numpy_only.lightmaps[target]), target

@@ -27,7 +27,7 @@
 #define PDIC_FOUR_PI 12.566370614359172
 
 /* Bumped whenever a signature changes: core/native_kernels.py refuses a library of another version. */
-PDIC_EXPORT int64_t pdic_native_version(void) { return 12; }
+PDIC_EXPORT int64_t pdic_native_version(void) { return 13; }
 
 /* core.zone_grid.ZoneGrid.pairs: every (point, record) with |q - p_k|^2 <= zone_k^2, points in order,
  * each point's cell entries in order. Dense cell table: first (n_cells + 1), else the sorted occupied
@@ -323,6 +323,31 @@ PDIC_EXPORT int64_t pdic_point_light_rays(const double *p, const double *n_s, co
         ++k;
     }
     return k;
+}
+
+/* core.lights.disk_samples_numpy without a spot mask: samples q (k, m, 3) on the disk (normal n_disk (k, 3)) facing
+ * each receiver pk (normals nsk, ngk): weight cos_s cos_l / (4 pi d^2) where ok, ok = d > 0, cos_s > 0, above n_g,
+ * cos_l > 0 and a positive weight. Dot products left to right, as core.vectors.dots. */
+PDIC_EXPORT void pdic_disk_samples(const double *q, const double *pk, const double *nsk, const double *ngk,
+                                   const double *n_disk, int64_t k, int64_t m, double *weight, uint8_t *ok) {
+    for (int64_t i = 0; i < k; ++i) {
+        const double *x = pk + 3 * i, *s = nsk + 3 * i, *g = ngk + 3 * i, *nd = n_disk + 3 * i;
+        for (int64_t j = 0; j < m; ++j) {
+            int64_t r = i * m + j;
+            const double *y = q + 3 * r;
+            double w[3] = {y[0] - x[0], y[1] - x[1], y[2] - x[2]};
+            double sq[3] = {w[0] * w[0], w[1] * w[1], w[2] * w[2]};
+            double d = sqrt((sq[0] + sq[1]) + sq[2]);
+            for (int e = 0; e < 3; ++e) w[e] = d > 0.0 ? w[e] / d : 0.0;
+            double cos_s = (s[0] * w[0] + s[1] * w[1]) + s[2] * w[2];
+            double cos_l = -((nd[0] * w[0] + nd[1] * w[1]) + nd[2] * w[2]);
+            double cos_g = (g[0] * w[0] + g[1] * w[1]) + g[2] * w[2];
+            int good = d > 0.0 && cos_s > 0.0 && cos_g > 0.0 && cos_l > 0.0;
+            double value = good ? (cos_s * cos_l) / ((PDIC_FOUR_PI * d) * d) : 0.0;
+            weight[r] = value;
+            ok[r] = (uint8_t)(good && value > 0.0);
+        }
+    }
 }
 
 /* core.rays.shadow_segments_numpy without target normals: from points p (normals n) to targets t, each point
