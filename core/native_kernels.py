@@ -585,10 +585,12 @@ def _self_check_lights(lib, rng) -> str | None:
     want = point_light_rays_numpy(p, n_s, n_g, c, 1e-3)
     if not all(np.array_equal(x, y) for x, y in zip(want, point_light_rays(lib, p, n_s, n_g, c, 1e-3))):
         return "point light rays differ"
-    return _self_check_area(lib, rng) or _self_check_hits(lib, rng) or _self_check_morton(lib, rng)
+    return _self_check_soft_lamps(lib, rng) or _self_check_hits(lib, rng) or _self_check_morton(lib, rng)
 
 
-def _self_check_area(lib, rng) -> str | None:
+def _self_check_soft_lamps(lib, rng) -> str | None:
+    """The soft lamps' kernels: an area light's facing points and samples, a soft-falloff lamp's samples, the
+    shadow segments of them all (a receiver on the light, zero-length segments, normals square to a segment)."""
     from .lights import area_facing_numpy, area_samples_numpy, disk_samples_numpy
     from .rays import shadow_segments_numpy
 

@@ -325,6 +325,18 @@ PDIC_EXPORT int64_t pdic_point_light_rays(const double *p, const double *n_s, co
     return k;
 }
 
+/* a . b of 3-vectors summed left to right, as core.vectors.dots. */
+static inline double dot3(const double *a, const double *b) { return (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]; }
+
+/* |w| as core.vectors.norms (the squares, then their sum left to right); w scaled to unit length where it is
+ * positive, else zeroed (np.divide with where=). */
+static inline double normalise3(double *w) {
+    double sq[3] = {w[0] * w[0], w[1] * w[1], w[2] * w[2]};
+    double d = sqrt((sq[0] + sq[1]) + sq[2]);
+    for (int e = 0; e < 3; ++e) w[e] = d > 0.0 ? w[e] / d : 0.0;
+    return d;
+}
+
 /* core.lights.disk_samples_numpy without a spot mask: samples q (k, m, 3) on the disk (normal n_disk (k, 3)) facing
  * each receiver pk (normals nsk, ngk): weight cos_s cos_l / (4 pi d^2) where ok, ok = d > 0, cos_s > 0, above n_g,
  * cos_l > 0 and a positive weight. Dot products left to right, as core.vectors.dots. */
@@ -336,12 +348,8 @@ PDIC_EXPORT void pdic_disk_samples(const double *q, const double *pk, const doub
             int64_t r = i * m + j;
             const double *y = q + 3 * r;
             double w[3] = {y[0] - x[0], y[1] - x[1], y[2] - x[2]};
-            double sq[3] = {w[0] * w[0], w[1] * w[1], w[2] * w[2]};
-            double d = sqrt((sq[0] + sq[1]) + sq[2]);
-            for (int e = 0; e < 3; ++e) w[e] = d > 0.0 ? w[e] / d : 0.0;
-            double cos_s = (s[0] * w[0] + s[1] * w[1]) + s[2] * w[2];
-            double cos_l = -((nd[0] * w[0] + nd[1] * w[1]) + nd[2] * w[2]);
-            double cos_g = (g[0] * w[0] + g[1] * w[1]) + g[2] * w[2];
+            double d = normalise3(w);
+            double cos_s = dot3(s, w), cos_l = -dot3(nd, w), cos_g = dot3(g, w);
             int good = d > 0.0 && cos_s > 0.0 && cos_g > 0.0 && cos_l > 0.0;
             double value = good ? (cos_s * cos_l) / ((PDIC_FOUR_PI * d) * d) : 0.0;
             weight[r] = value;
@@ -358,12 +366,9 @@ PDIC_EXPORT void pdic_shadow_segments(const double *p, const double *n, const do
                                       double *start_out, double *dir_out, double *t_max_out, uint8_t *open_out) {
     for (int64_t i = 0; i < m; ++i) {
         const double *x = p + 3 * i, *nx = n + 3 * i, *y = t + 3 * i;
-        double v[3] = {y[0] - x[0], y[1] - x[1], y[2] - x[2]};
-        double sq[3] = {v[0] * v[0], v[1] * v[1], v[2] * v[2]};
-        double length = sqrt((sq[0] + sq[1]) + sq[2]);
-        double toward[3];
-        for (int a = 0; a < 3; ++a) toward[a] = length > 0.0 ? v[a] / length : 0.0;
-        double facing = (nx[0] * toward[0] + nx[1] * toward[1]) + nx[2] * toward[2];
+        double toward[3] = {y[0] - x[0], y[1] - x[1], y[2] - x[2]};
+        normalise3(toward);
+        double facing = dot3(nx, toward);
         double side = facing > 0.0 ? 1.0 : (facing < 0.0 ? -1.0 : (facing == 0.0 ? 1.0 : facing));
         double push = epsilon * side, seg[3];
         for (int a = 0; a < 3; ++a) {
@@ -371,9 +376,8 @@ PDIC_EXPORT void pdic_shadow_segments(const double *p, const double *n, const do
             start_out[3 * i + a] = start;
             seg[a] = y[a] - start;
         }
-        double sq2[3] = {seg[0] * seg[0], seg[1] * seg[1], seg[2] * seg[2]};
-        double dist = sqrt((sq2[0] + sq2[1]) + sq2[2]);
-        for (int a = 0; a < 3; ++a) dir_out[3 * i + a] = dist > 0.0 ? seg[a] / dist : 0.0;
+        double dist = normalise3(seg);
+        for (int a = 0; a < 3; ++a) dir_out[3 * i + a] = seg[a];
         double t_max = dist - epsilon;
         t_max_out[i] = (t_max != t_max || t_max >= 0.0) ? t_max : 0.0;  /* np.maximum(., 0): NaN stays */
         open_out[i] = dist > 0.0;
@@ -387,12 +391,12 @@ PDIC_EXPORT void pdic_area_facing(const double *p, const double *n_s, const doub
     for (int64_t i = 0; i < n; ++i) {
         const double *x = p + 3 * i, *s = n_s + 3 * i, *g = n_g + 3 * i;
         double f[3] = {x[0] - c[0], x[1] - c[1], x[2] - c[2]};
-        int front = ((f[0] * N[0] + f[1] * N[1]) + f[2] * N[2]) > 0.0;
+        int front = dot3(f, N) > 0.0;
         int above_g = 0, above_s = 0;
         for (int k = 0; k < 4; ++k) {
             double t[3] = {corners[3 * k] - x[0], corners[3 * k + 1] - x[1], corners[3 * k + 2] - x[2]};
-            above_g |= ((g[0] * t[0] + g[1] * t[1]) + g[2] * t[2]) > 0.0;
-            above_s |= ((s[0] * t[0] + s[1] * t[1]) + s[2] * t[2]) > 0.0;
+            above_g |= dot3(g, t) > 0.0;
+            above_s |= dot3(s, t) > 0.0;
         }
         facing[i] = (uint8_t)(front && above_g && above_s);
     }
@@ -416,12 +420,8 @@ PDIC_EXPORT void pdic_area_samples(const double *xy, const double *pk, const dou
                 q[e] = (c[e] + a * U[e]) + b * V[e];
                 w[e] = q[e] - x[e];
             }
-            double sq[3] = {w[0] * w[0], w[1] * w[1], w[2] * w[2]};
-            double d = sqrt((sq[0] + sq[1]) + sq[2]);
-            for (int e = 0; e < 3; ++e) w[e] = d > 0.0 ? w[e] / d : 0.0;
-            double cos_s = (s[0] * w[0] + s[1] * w[1]) + s[2] * w[2];
-            double cos_l = -((w[0] * N[0] + w[1] * N[1]) + w[2] * N[2]);
-            double cos_g = (g[0] * w[0] + g[1] * w[1]) + g[2] * w[2];
+            double d = normalise3(w);
+            double cos_s = dot3(s, w), cos_l = -dot3(w, N), cos_g = dot3(g, w);
             int good = d > 0.0 && cos_s > 0.0 && cos_l > 0.0 && cos_g > 0.0;
             ok[r] = (uint8_t)good;
             weight[r] = good ? (cos_s * cos_l) / ((d * d) * pdf) : 0.0;
