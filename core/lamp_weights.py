@@ -22,6 +22,16 @@ def weight_chunks(points: int, lamps: int):
         yield slice(start, min(start + step, points))
 
 
+def split_lamps(emitters, is_lamp, minimum: int) -> tuple[tuple, tuple]:
+    """(the emitting lamps ``is_lamp`` picks, the other emitters) when there are ``minimum`` such lamps or more;
+    else ((), every emitter). The light draw and the light budget each split a scene's emitters so."""
+    lamps = tuple(e for e in emitters if is_lamp(e) and e.emits())
+    if len(lamps) < minimum:
+        return (), tuple(emitters)
+    taken = {id(lamp) for lamp in lamps}
+    return lamps, tuple(e for e in emitters if id(e) not in taken)
+
+
 def soft_lamp(lamp) -> bool:
     """Whether ``lamp`` has a soft shadow: an area light, or a point or spot light with a radius."""
     if isinstance(lamp, AreaLight):

@@ -23,18 +23,16 @@ from __future__ import annotations
 import numpy as np
 
 from .constants import BUDGET_LAMPS, BUDGET_SCALE, DRAWN_SHARE
-from .lamp_weights import lamp_probabilities, soft_lamp
+from .lamp_weights import lamp_probabilities, soft_lamp, split_lamps
 
 
 def budgeted_lamps(emitters: tuple, samples: int, drawn: bool = False) -> tuple[tuple, tuple]:
     """(soft lamps that share the budget, the other emitters): the soft lamps that emit when there are
     BUDGET_LAMPS or more and a point takes more than one sample, or one drawn among them (``drawn``,
     :func:`group_draws`); else ((), ``emitters``)."""
-    lamps = tuple(e for e in emitters if soft_lamp(e) and e.emits())
-    if (samples <= 1 and not drawn) or len(lamps) < BUDGET_LAMPS:
+    if samples <= 1 and not drawn:
         return (), tuple(emitters)
-    shared = {id(lamp) for lamp in lamps}
-    return lamps, tuple(e for e in emitters if id(e) not in shared)
+    return split_lamps(emitters, soft_lamp, BUDGET_LAMPS)
 
 
 def sample_counts(lamps: tuple, p: np.ndarray, n: np.ndarray, samples: int) -> np.ndarray:

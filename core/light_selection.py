@@ -22,19 +22,18 @@ import numpy as np
 
 from .constants import SELECTION_LAMPS
 from .direct import DirectResult, direct_irradiance
-from .lamp_weights import lamp_probabilities, weight_chunks
+from .lamp_weights import lamp_probabilities, split_lamps, weight_chunks
 from .lights import AreaLight, PointLight, SpotLight
+
+
+LAMP_TYPES = (PointLight, SpotLight, AreaLight)
+"""The emitters a gathering hit draws among: lamps, not suns, emissive triangles or the world."""
 
 
 def selectable_lamps(scene) -> tuple[tuple, tuple]:
     """(lamps drawn among, the other emitters): the point, spot and area lights that emit, when there are
     SELECTION_LAMPS or more; else nothing is drawn among, ((), every emitter)."""
-    emitters = scene.emitters()
-    lamps = tuple(e for e in emitters if isinstance(e, (PointLight, SpotLight, AreaLight)) and e.emits())
-    if len(lamps) < SELECTION_LAMPS:
-        return (), emitters
-    drawn = {id(lamp) for lamp in lamps}
-    return lamps, tuple(e for e in emitters if id(e) not in drawn)
+    return split_lamps(scene.emitters(), lambda e: isinstance(e, LAMP_TYPES), SELECTION_LAMPS)
 
 
 def gathering_direct(scene, caster, p: np.ndarray, n: np.ndarray, rng: np.random.Generator, select: bool

@@ -162,6 +162,11 @@ def _f64(a) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.float64)
 
 
+def _vec3(v) -> np.ndarray:
+    """One 3-vector (a light's centre, normal or axis) as the kernels read it."""
+    return _f64(np.broadcast_to(np.asarray(v, np.float64), (3,)))
+
+
 def _i64(a) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.int64)
 
@@ -338,7 +343,7 @@ def shadow_segments(lib, points, normals, targets, epsilon: float) -> tuple:
 def area_facing(lib, p, n_s, n_g, c, N, corners) -> np.ndarray:
     """:func:`core.lights.area_facing_numpy` in C: the same (n,) bool."""
     p, n_s, n_g, corners = _f64(p), _f64(n_s), _f64(n_g), _f64(corners)
-    c, N = (_f64(np.broadcast_to(np.asarray(v, np.float64), (3,))) for v in (c, N))
+    c, N = _vec3(c), _vec3(N)
     if n_s.shape != p.shape or n_g.shape != p.shape or corners.shape != (4, 3):
         raise ValueError(f"area_facing: points {p.shape}, normals {n_s.shape}, {n_g.shape}, corners {corners.shape}")
     facing = np.empty(len(p), np.uint8)
@@ -349,7 +354,7 @@ def area_facing(lib, p, n_s, n_g, c, N, corners) -> np.ndarray:
 def area_samples(lib, xy, pk, nsk, ngk, c, N, U, V, pdf_area: float, lift: float) -> tuple:
     """:func:`core.lights.area_samples_numpy` in C: the same (targets (k, m, 3), weight (k, m), ok (k, m))."""
     xy, pk, nsk, ngk = _f64(xy), _f64(pk), _f64(nsk), _f64(ngk)
-    c, N, U, V = (_f64(np.broadcast_to(np.asarray(v, np.float64), (3,))) for v in (c, N, U, V))
+    c, N, U, V = _vec3(c), _vec3(N), _vec3(U), _vec3(V)
     k, m = xy.shape[0], xy.shape[1]
     if pk.shape != (k, 3) or nsk.shape != (k, 3) or ngk.shape != (k, 3) or xy.shape != (k, m, 2):
         raise ValueError(f"area_samples: xy {xy.shape} and points {pk.shape}, {nsk.shape}, {ngk.shape} disagree")
@@ -612,7 +617,7 @@ def _self_check_soft_lamps(lib, rng) -> str | None:
     if not all(_same_bits(x, y) for x, y in zip(disk_samples_numpy(want[0], pk, nsk, ngk, n_disk),
                                                disk_samples(lib, want[0], pk, nsk, ngk, n_disk))):
         return "disk lamp samples differ"
-    targets = want[0].reshape(-1, 3)
+    targets = want[0].reshape(-1, 3).copy()
     points, normals = np.repeat(pk, m, axis=0), np.repeat(nsk, m, axis=0)
     targets[::37] = points[::37]  # zero-length segments
     normals[::41] = np.cross(normals[::41], targets[::41] - points[::41])  # normals square to the segment
