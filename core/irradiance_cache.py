@@ -60,6 +60,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from . import native_kernels
 from .constants import CLAMP_RECOVERY_ROUNDS, COVERAGE_ANGLES, COVERAGE_RINGS, STREAM_RECORD_ORDER, WALL_RAYS
 from .coverage import surface_coverages
 from .density import PhotonDensity, ZoneEstimates, ball_pairs
@@ -264,6 +265,9 @@ def covered_by_zones(density: PhotonDensity, cache: IrradianceCache, zones: "Zon
     weighed again, in chunks of records, the least shrunk first (they cover the most, so fewer pairs
     remain for the rest)."""
     covered = np.zeros(len(density.p), bool)
+    lib = native_kernels.library()
+    if lib is not None:  # Equations 1-2 over the pairs in C, as Equation 3's lookups weigh them
+        p64, n64 = np.ascontiguousarray(density.p, np.float64), density.n.astype(np.float64)
     shrink = cache.R / np.maximum(placed, 1e-300)
     kept = np.flatnonzero(shrink >= 1.0)
     for s in slices(len(kept), CLAMP_CHUNK * 8):
@@ -275,9 +279,12 @@ def covered_by_zones(density: PhotonDensity, cache: IrradianceCache, zones: "Zon
         owner = np.repeat(again[s], lengths)
         open_ = np.flatnonzero(~covered[photons])
         photons, owner = photons[open_], owner[open_]
-        P, N = density.p[photons].astype(np.float64), density.n[photons].astype(np.float64)
-        p_k, n_k, R_k = cache.p[owner], cache.n[owner], cache.R[owner]
-        ok = accepted(ward_weight(P, N, p_k, n_k, R_k), a, P, N, p_k, n_k, R_k)
+        if lib is not None:
+            ok = native_kernels.ward_accept(lib, p64, n64, cache.p, cache.n, cache.R, 0.0, a, photons, owner)[1]
+        else:
+            P, N = density.p[photons].astype(np.float64), density.n[photons].astype(np.float64)
+            p_k, n_k, R_k = cache.p[owner], cache.n[owner], cache.R[owner]
+            ok = accepted(ward_weight(P, N, p_k, n_k, R_k), a, P, N, p_k, n_k, R_k)
         covered[photons[ok]] = True
     return covered
 
@@ -338,6 +345,7 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
     clamp = _NeighbourClamp(existing, params.neighbour_clamp, density.workers, shared)
     cand_tree = None if candidate_is_photon else cKDTree(cand_p)
     order = rng.permutation(len(cand_p))
+    slot_of = np.full(len(cand_p), -1, np.int64)  # _accumulate's scratch
     start, size = 0, 32  # the first block is small: it measures how many photons a zone holds
     while start < len(order):
         block, start = _next_block(order, start, w_sum, threshold, size)
@@ -350,7 +358,7 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
             new, members, w_members, owner = _create_records(
                 density, picked, cand_p[picked], cand_n[picked], R_k, params, caster, cand_tree, cand_p, cand_n,
                 candidate_is_photon, stats, estimate or candidate_is_photon)
-            _accumulate(w_sum, E_sum, members, w_members, new.E[owner])  # Algorithm 1's last line
+            _accumulate(w_sum, E_sum, members, w_members, new.E[owner], slot_of)  # Algorithm 1's last line
             # A candidate is covered by its own record even if Equation 2 rounding dropped it.
             short = w_sum[picked] < threshold
             E_sum[picked[short]] += (threshold - w_sum[picked[short]])[:, None] * new.E[short]
@@ -367,8 +375,19 @@ def place_records(density: PhotonDensity, cand_p: np.ndarray, cand_n: np.ndarray
     return records.cache(hole=not candidate_is_photon), Zones(records.zones), stats
 
 
-def _accumulate(w_sum: np.ndarray, E_sum: np.ndarray, members: np.ndarray, w: np.ndarray, E_k: np.ndarray):
-    """w_sum[c] += w, E_sum[c] += w E_k over (m,) pairs (candidate c, weight w, E_k (m, 3)), in place."""
+def _accumulate(w_sum: np.ndarray, E_sum: np.ndarray, members: np.ndarray, w: np.ndarray, E_k: np.ndarray,
+                slot_of: np.ndarray):
+    """w_sum[c] += w, E_sum[c] += w E_k over (m,) pairs (candidate c, weight w, E_k (m, 3)), in place: each
+    candidate's pairs summed first, then added; compiled when the library is there (the same sums as
+    :func:`_accumulate_numpy`; a float32 (N, 3) array's fancy-indexed add alone cost the building 3.4 s of pass
+    2). slot_of : (c,) int64 all -1, the kernel's scratch, left so."""
+    lib = native_kernels.library()
+    if lib is None or not native_kernels.accumulate(lib, w_sum, E_sum, members, w, E_k, slot_of):
+        _accumulate_numpy(w_sum, E_sum, members, w, E_k)
+
+
+def _accumulate_numpy(w_sum: np.ndarray, E_sum: np.ndarray, members: np.ndarray, w: np.ndarray, E_k: np.ndarray):
+    """:func:`_accumulate` in numpy (the compiled kernel's reference)."""
     # bincount per channel (np.add.at was 2x slower here), over the touched candidates only: a block's
     # zones hold at most ~_ZONE_PAIRS pairs, and counts over all of Sponza's 2.9 M photons cost 23 MB each.
     touched, slot = np.unique(members, return_inverse=True)

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-VERSION = 13
+VERSION = 14
 """The C library's ``pdic_native_version()`` this module calls; a library of another version is not used."""
 NATIVE_DIR = Path(__file__).resolve().parent / "native"
 SUFFIX = {"linux": ".so", "windows": ".dll", "macos": ".dylib"}
@@ -110,6 +110,12 @@ def _declare(lib) -> None:
     lib.pdic_area_samples.argtypes = [_PTR] * 4 + [_I64] * 2 + [_PTR] * 4 + [_F64] * 2 + [_PTR] * 3
     lib.pdic_cell_bytes.restype = _I64
     lib.pdic_cell_bytes.argtypes = []
+    lib.pdic_concentric_polar.restype = None
+    lib.pdic_concentric_polar.argtypes = [_PTR, _I64, _PTR, _PTR]
+    lib.pdic_cosine_directions.restype = None
+    lib.pdic_cosine_directions.argtypes = [_PTR] * 4 + [_I64, _PTR]
+    lib.pdic_accumulate.restype = None
+    lib.pdic_accumulate.argtypes = [_PTR, _I64] + [_PTR] * 4 + [_I64] + [_PTR] * 4
 
 
 def _load():
@@ -256,6 +262,37 @@ def gathering_rays(lib, hemisphere, cells: np.ndarray, u: np.ndarray, frames, ep
     lib.pdic_gathering_rays(_ptr(cells), n, C, N, hemisphere.rows, _ptr(u), _ptr(cos_phi), _ptr(sin_phi),
                             _ptr(p_k), _ptr(t1), _ptr(t2), _ptr(normal), float(epsilon), _ptr(w), _ptr(d), _ptr(o))
     return w, d, o
+
+
+def cosine_directions(lib, u: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """:func:`core.sampling.cosine_directions` in C, the disk angle's cosine and sine by numpy: (m, 3), the same
+    values."""
+    u, n = _f64(u), _f64(n)
+    m = len(u)
+    r, phi, d = np.empty(m), np.empty(m), np.empty((m, 3))
+    lib.pdic_concentric_polar(_ptr(u), m, _ptr(r), _ptr(phi))
+    lib.pdic_cosine_directions(_ptr(r), _ptr(np.cos(phi)), _ptr(np.sin(phi)), _ptr(n), m, _ptr(d))
+    return d
+
+
+def accumulate(lib, w_sum: np.ndarray, E_sum: np.ndarray, members: np.ndarray, w: np.ndarray, E_k: np.ndarray,
+               slot_of: np.ndarray) -> bool:
+    """:func:`core.irradiance_cache._accumulate_numpy` in C, in place, the same sums; False (nothing done) where
+    w_sum (c,) and E_sum (c, 3) are not both C-contiguous float32 or both float64. slot_of : (c,) int64 all -1,
+    scratch the kernel leaves all -1."""
+    single = w_sum.dtype == np.float32
+    if not (w_sum.dtype == E_sum.dtype and w_sum.dtype in (np.float32, np.float64) and w_sum.flags.c_contiguous
+            and E_sum.flags.c_contiguous and E_sum.shape == (len(w_sum), 3)):
+        return False
+    if not (slot_of.dtype == np.int64 and slot_of.flags.c_contiguous and len(slot_of) == len(w_sum)):
+        raise ValueError("slot_of must be C-contiguous int64, one per candidate")
+    members, w, E_k = _i64(members), _f64(w), _f64(E_k)
+    m = len(members)
+    if m and not (0 <= int(members.min()) and int(members.max()) < len(w_sum)):
+        raise ValueError("accumulate: a candidate outside the sums")
+    lib.pdic_accumulate(_ptr(members), m, _ptr(w), _ptr(E_k), _ptr(w_sum), _ptr(E_sum), int(single), _ptr(slot_of),
+                        _ptr(np.empty(m, np.int64)), _ptr(np.empty(m)), _ptr(np.empty((m, 3))))
+    return True
 
 
 def tally_real_rays(lib, sums, cells: np.ndarray, w_local: np.ndarray, hits, origin: np.ndarray,
@@ -524,6 +561,10 @@ def _self_check_gathering(lib, rng) -> str | None:
     got = gathering_rays(lib, H, cells, u, frames, 1e-4)
     if not all(np.array_equal(x, y) for x, y in zip(want, got)):
         return "gathering rays differ"
+    if not _self_check_directions(lib, rng):
+        return "cosine directions differ"
+    if not _self_check_member_sums(lib, rng):
+        return "Algorithm 1's sums differ"
     w, d, o = want
     t = np.where(rng.random(40) < 0.3, np.inf, rng.uniform(0.0, 2.0, 40))
     hits = Hits(t, np.where(np.isinf(t), -1, rng.integers(0, 9, 40)), rng.random((40, 2)))
@@ -538,6 +579,35 @@ def _self_check_gathering(lib, rng) -> str | None:
     if not same:
         return "gathering tallies differ"
     return _self_check_cells(lib, rng)
+
+
+def _self_check_directions(lib, rng) -> bool:
+    """Cosine-weighted directions about normals of every sign (z = 0, -0.0 and -1 among them), at u on the disk's
+    centre and its diagonals, to the bit."""
+    from .sampling import cosine_directions_numpy
+
+    n = rng.normal(size=(64, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    n[:4] = [[0.0, 0.0, -1.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, -0.0]]
+    u = rng.random((64, 2))
+    u[:3] = [[0.5, 0.5], [0.25, 0.25], [0.0, 0.75]]
+    return _same_bits(cosine_directions_numpy(u, n), cosine_directions(lib, u, n))
+
+
+def _self_check_member_sums(lib, rng) -> bool:
+    """Algorithm 1's sums over candidates met once, many times or not at all, into float32 and float64 sums."""
+    from .irradiance_cache import _accumulate_numpy
+
+    members = rng.integers(0, 40, 300)
+    w, E_k = rng.random(300) * 10.0 ** rng.uniform(-8, 2, 300), rng.normal(size=(300, 3))
+    for dtype in (np.float32, np.float64):
+        sums = [(np.full(50, 0.5, dtype), np.full((50, 3), 0.25, dtype)) for _ in range(2)]
+        _accumulate_numpy(*sums[0], members, w, E_k)
+        if not accumulate(lib, *sums[1], members, w, E_k, np.full(50, -1, np.int64)):
+            return False
+        if not all(_same_bits(a.astype(np.float64), b.astype(np.float64)) for a, b in zip(*sums)):
+            return False
+    return True
 
 
 def _self_check_cells(lib, rng) -> str | None:

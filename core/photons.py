@@ -23,7 +23,7 @@ from .constants import REFLECTED_SHARE_FLOOR, STREAM_PHOTONS, TRANSPARENT_MAX_LA
 from .executor import Executor, Progress, serial_executor
 from .lights import unused_portals
 from .rays import RayCaster
-from .sampling import cosine_hemisphere, to_world
+from .sampling import cosine_directions
 from .scene import Scene
 
 BATCH_PHOTONS = 65_536
@@ -206,7 +206,7 @@ def trace_photon_batch(scene: Scene, caster: RayCaster, origins: np.ndarray, dir
         q = rho[bounced].max(axis=1)
         bounced = bounced[rng.random(len(bounced)) < q]
         q = rho[bounced].max(axis=1)
-        d_bounced = to_world(cosine_hemisphere(rng.random((len(bounced), 2)))[0], n[bounced])
+        d_bounced = cosine_directions(rng.random((len(bounced), 2)), n[bounced])
         o = np.concatenate([p[go], p[bounced]])
         d = np.concatenate([d[go], d_bounced])
         phi = np.concatenate([phi[go], phi[bounced] * rho[bounced] / q[:, None]])

@@ -25,7 +25,7 @@ from .light_selection import gathering_direct
 from .gather_cells import CellSums
 from .photon_fallback import NOT_ASKED, NearestPhotons, lent_irradiance, nearest_photon_seen
 from .rays import offset_origins
-from .sampling import cosine_hemisphere, to_world
+from .sampling import cosine_directions
 from .vectors import dots
 from .zone_grid import spatial_order
 
@@ -299,7 +299,7 @@ def gap_irradiance(scene, caster, sources, q: np.ndarray, n_hit: np.ndarray, rng
     vertices = []  # per bounce: (walk rows, y, n_y, beta at y, leaves the gap at y, y's triangle,
     #                  barycentric, the ray that met y, y's distance from the vertex before)
     for bounce in range(GAP_WALK_BOUNCES):
-        d = to_world(cosine_hemisphere(rng.random((len(x), 2)))[0], n_x)
+        d = cosine_directions(rng.random((len(x), 2)), n_x)
         origin = caster.offset_origins(x, n_x, d)
         hits = caster.intersect(origin, d, unit=True)
         rays += len(x)

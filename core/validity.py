@@ -26,7 +26,7 @@ from .constants import (BACKFACE_FRACTION, COVERED_COS, COVERED_TEXELS, EVIDENCE
                         VALIDITY_RAYS)
 from .executor import TEXEL_CHUNK, Executor, slices
 from .rays import RayCaster
-from .sampling import cosine_hemisphere, orthonormal_basis
+from .sampling import cosine_directions
 from .texels import footprint_texel_points
 
 LATER_ROUND = 2
@@ -60,18 +60,15 @@ def inside_geometry(caster: RayCaster, face_normals: np.ndarray, p: np.ndarray, 
     # All random numbers are drawn up front, so the verdict does not depend on the round schedule;
     # directions are made only for the rays a round casts (most samples settle after the first).
     u = rng.random((m, rays, 2))
-    t1, t2 = orthonormal_basis(n)
     back = np.zeros(m, np.int64)
     open_ = np.arange(m)  # samples whose verdict is still open
     cast, done = 0, 0
     first = rays - majority + 1  # the fewest rays after which "no back face yet" settles "outside"
     while len(open_) and done < rays:
         step = min(first if done == 0 else LATER_ROUND, rays - done)
-        w = cosine_hemisphere(u[open_, done:done + step])[0]
-        t1_o, t2_o, n_o = (np.take(v, open_, axis=0)[:, None] for v in (t1, t2, n))
-        d = (w[..., :1] * t1_o + w[..., 1:2] * t2_o + w[..., 2:3] * n_o).reshape(-1, 3)
         ray_sample = np.repeat(open_, step)
         n_ray = np.take(n, ray_sample, axis=0)
+        d = cosine_directions(u[open_, done:done + step].reshape(-1, 2), n_ray)
         hits = caster.intersect(np.take(p, ray_sample, axis=0), d, normals=n_ray, unit=True)
         cast += len(d)
         hit = hits.hit

@@ -76,3 +76,24 @@ def test_recovery_off_is_the_plain_clamp():
                                  caster=caster)
     assert len(off) == len(walked) and np.array_equal(off.p, walked.p)
     assert np.array_equal(off.R, neighbour_clamp(walked.p, walked.R)) and stats.uncovered_after_clamp == []
+
+
+def test_coverage_after_the_clamp_is_the_same_with_the_library_or_without(monkeypatch):
+    """Which photons the clamped zones still cover: the compiled Equations 1-2 (core/native_kernels.py) give
+    numpy's verdict for every photon, and both the brute force's."""
+    from pdic.core import native_kernels
+    from pdic.core.irradiance_cache import covered_by_zones
+
+    assert native_kernels.library() is not None, native_kernels.status()
+    caster, density = _room()
+    walked, zones, _ = place_records(density, density.p, density.n, np.zeros(len(density.p)),
+                                     np.zeros((len(density.p), 3)), PARAMS,
+                                     np.random.default_rng([1, STREAM_RECORD_ORDER]), candidate_is_photon=True,
+                                     caster=caster)
+    cache = replace(walked, R=neighbour_clamp(walked.p, walked.R))
+    compiled = covered_by_zones(density, cache, zones, PARAMS.a, walked.R)
+    monkeypatch.setattr(native_kernels, "library", lambda: None)
+    plain = covered_by_zones(density, cache, zones, PARAMS.a, walked.R)
+    assert np.array_equal(compiled, plain)
+    assert 0.02 < (~plain).mean() < 0.5  # the clamp uncovers some, not most
+    assert np.array_equal(plain, ~_uncovered(density, cache))

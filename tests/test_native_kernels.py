@@ -148,6 +148,63 @@ def test_gathering_rays_equal_numpy(rows, columns):
         assert (want[0][:, 2] < 1e-7).any() and (want[0][:, 2] > 0.9).any()
 
 
+def test_cosine_directions_equal_numpy():
+    from pdic.core.sampling import cosine_directions_numpy
+
+    rng = np.random.default_rng(19)
+    m = 50000
+    n = _unit(rng.normal(size=(m, 3)))
+    n[::7, 2] = rng.choice([0.0, -0.0, 1e-300, -1e-300], size=len(n[::7]))  # on the tangents' seam, z's sign
+    n[::7] = _unit(n[::7])
+    n[1::97] = [0.0, 0.0, -1.0]
+    n[2::97] = np.nan
+    u = rng.random((m, 2))
+    u[::53] = [0.5, 0.5]  # the disk's centre: phi 0
+    u[1::53] = [1.0 - 2 ** -53, 0.5]  # the disk's edge, a direction a rounding above the horizon
+    u[2::53] = [0.25, 0.25]  # its diagonal, |a| = |b|
+    want = cosine_directions_numpy(u, n)
+    got = native_kernels.cosine_directions(LIB, u, n)
+    assert np.array_equal(want.view(np.uint64), got.view(np.uint64))  # NaN payloads and zeros' signs too
+    finite = np.isfinite(want).all(axis=1)
+    assert finite.sum() > 0.98 * m and np.allclose(np.linalg.norm(want[finite], axis=1), 1.0)
+    assert (dots(want[finite], n[finite]) >= 0.0).all()
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_algorithm_1_sums_equal_numpy(dtype):
+    """Algorithm 1's last line over a block's pairs: pass 2 sums into the photons' float32 fields, the hole
+    records into float64 ones; candidates met by one pair, by hundreds, and none."""
+    from pdic.core.irradiance_cache import _accumulate, _accumulate_numpy
+
+    rng = np.random.default_rng(20)
+    N, m = 5000, 40000
+    members = np.concatenate([rng.integers(0, 50, m // 2), rng.integers(0, N - 100, m // 2)])  # crowded and sparse
+    w = rng.random(m) * 10.0 ** rng.uniform(-12, 3, m)
+    E_k = rng.normal(size=(m, 3)) * 10.0 ** rng.uniform(-6, 4, (m, 1))
+    start = (rng.random(N) * 3).astype(dtype), (rng.random((N, 3)) * 3).astype(dtype)
+    want = tuple(a.copy() for a in start)
+    got = tuple(a.copy() for a in start)
+    _accumulate_numpy(*want, members, w, E_k)
+    slot_of = np.full(N, -1, np.int64)
+    for part in np.array_split(np.arange(m), 7):  # blocks one after another, as place_records calls it
+        assert native_kernels.accumulate(LIB, *got, members[part], w[part], E_k[part], slot_of)
+    dispatched = tuple(a.copy() for a in start)
+    for part in np.array_split(np.arange(m), 7):
+        _accumulate(*dispatched, members[part], w[part], E_k[part], slot_of)
+    blocks = tuple(a.copy() for a in start)
+    for part in np.array_split(np.arange(m), 7):
+        _accumulate_numpy(*blocks, members[part], w[part], E_k[part])
+    for a, b, c in zip(blocks, got, dispatched):
+        assert a.dtype == b.dtype == c.dtype == dtype and np.array_equal(a, b) and np.array_equal(a, c)
+    assert (slot_of == -1).all()  # the scratch is left as found
+    assert not np.array_equal(want[0], start[0]) and np.array_equal(want[0][N - 100:], start[0][N - 100:])
+    with pytest.raises(ValueError, match="outside"):
+        native_kernels.accumulate(LIB, *got, np.array([N]), w[:1], E_k[:1], slot_of)
+    other = np.float64 if dtype == np.float32 else np.float32
+    assert not native_kernels.accumulate(LIB, got[0].astype(other), got[1], members, w, E_k, slot_of)
+    assert not native_kernels.accumulate(LIB, got[0], got[1][:, :2], members, w, E_k, slot_of)  # the caller's numpy
+
+
 def test_gathering_tallies_equal_numpy():
     rng = np.random.default_rng(19)
     H, B = Hemisphere(8, 16), 200

@@ -25,9 +25,12 @@
 #define PDIC_TWO_PI 6.283185307179586
 /* 4 pi as numpy's 4.0 * np.pi. */
 #define PDIC_FOUR_PI 12.566370614359172
+/* pi / 4 and pi / 2 as numpy's np.pi / 4.0 and np.pi / 2.0. */
+#define PDIC_QUARTER_PI 0.7853981633974483
+#define PDIC_HALF_PI 1.5707963267948966
 
 /* Bumped whenever a signature changes: core/native_kernels.py refuses a library of another version. */
-PDIC_EXPORT int64_t pdic_native_version(void) { return 13; }
+PDIC_EXPORT int64_t pdic_native_version(void) { return 14; }
 
 /* core.zone_grid.ZoneGrid.pairs: every (point, record) with |q - p_k|^2 <= zone_k^2, points in order,
  * each point's cell entries in order. Dense cell table: first (n_cells + 1), else the sorted occupied
@@ -250,6 +253,74 @@ PDIC_EXPORT void pdic_gathering_rays(const int64_t *cells, int64_t n, int64_t C,
             w_out[3 * i + c] = w[c];
             d_out[3 * i + c] = d[c];
             o_out[3 * i + c] = p[c] + push * z[c];
+        }
+    }
+}
+
+/* core.sampling._concentric_polar: Shirley and Chiu's concentric map of uniform u (m, 2) to the unit disk, in
+ * polar form r and phi (m,). numpy takes phi's cosine and sine (a C library's may differ in the last bit),
+ * pdic_cosine_directions the rest. */
+PDIC_EXPORT void pdic_concentric_polar(const double *u, int64_t m, double *r_out, double *phi_out) {
+    for (int64_t i = 0; i < m; ++i) {
+        double a = 2.0 * u[2 * i] - 1.0, b = 2.0 * u[2 * i + 1] - 1.0;
+        int first = fabs(a) > fabs(b);
+        double phi = first ? PDIC_QUARTER_PI * (b / a) : PDIC_HALF_PI - PDIC_QUARTER_PI * (a / b);
+        r_out[i] = first ? a : b;
+        phi_out[i] = (a == 0.0 && b == 0.0) ? 0.0 : phi;
+    }
+}
+
+/* core.sampling.cosine_directions: the cosine-weighted direction (core.sampling.cosine_hemisphere) at the disk
+ * point r (cos phi, sin phi) turned into the frame of unit normals n (m, 3) (core.sampling.to_world: Duff et
+ * al.'s tangents t1, t2, then (w_x t1 + w_y t2) + w_z n a component at a time). */
+PDIC_EXPORT void pdic_cosine_directions(const double *r, const double *cos_phi, const double *sin_phi,
+                                        const double *n, int64_t m, double *d_out) {
+    for (int64_t i = 0; i < m; ++i) {
+        double wx = r[i] * cos_phi[i], wy = r[i] * sin_phi[i];
+        double v = 1.0 - (wx * wx + wy * wy);
+        double wz = sqrt(v > 0.0 || v != v ? v : 0.0);  /* np.maximum(0.0, v): NaN kept */
+        const double *z3 = n + 3 * i;
+        double x = z3[0], y = z3[1], z = z3[2];
+        double sign = z >= 0.0 ? 1.0 : -1.0;
+        double a = -1.0 / (sign + z);
+        double b = (x * y) * a;
+        double t1[3] = {1.0 + ((sign * x) * x) * a, sign * b, (-sign) * x};
+        double t2[3] = {b, sign + (y * y) * a, -y};
+        for (int c = 0; c < 3; ++c) d_out[3 * i + c] = (wx * t1[c] + wy * t2[c]) + wz * z3[c];
+    }
+}
+
+/* core.irradiance_cache._accumulate_numpy (np.unique, then np.bincount per channel): each candidate's Ward
+ * weights w and products w E_k (E_k (m, 3)) over its pairs (members (m,)), summed from 0 in the pairs' order, then
+ * added to its w_sum and E_sum (float32 when single, else float64; numpy adds in float64 and rounds to the
+ * array's type). slot_of (one per candidate, all -1) and touched, w_acc (m,), E_acc (m, 3) are the caller's
+ * scratch; slot_of is left all -1. */
+PDIC_EXPORT void pdic_accumulate(const int64_t *members, int64_t m, const double *w, const double *E_k,
+                                 void *w_sum, void *E_sum, int64_t single, int64_t *slot_of, int64_t *touched,
+                                 double *w_acc, double *E_acc) {
+    int64_t count = 0;
+    for (int64_t i = 0; i < m; ++i) {
+        int64_t c = members[i], s = slot_of[c];
+        if (s < 0) {
+            s = slot_of[c] = count++;
+            touched[s] = c;
+            w_acc[s] = 0.0;
+            E_acc[3 * s] = E_acc[3 * s + 1] = E_acc[3 * s + 2] = 0.0;
+        }
+        w_acc[s] += w[i];
+        for (int e = 0; e < 3; ++e) E_acc[3 * s + e] += w[i] * E_k[3 * i + e];
+    }
+    for (int64_t s = 0; s < count; ++s) {
+        int64_t c = touched[s];
+        slot_of[c] = -1;
+        if (single) {
+            float *ws = (float *)w_sum, *Es = (float *)E_sum;
+            ws[c] = (float)((double)ws[c] + w_acc[s]);
+            for (int e = 0; e < 3; ++e) Es[3 * c + e] = (float)((double)Es[3 * c + e] + E_acc[3 * s + e]);
+        } else {
+            double *ws = (double *)w_sum, *Es = (double *)E_sum;
+            ws[c] = ws[c] + w_acc[s];
+            for (int e = 0; e < 3; ++e) Es[3 * c + e] = Es[3 * c + e] + E_acc[3 * s + e];
         }
     }
 }
