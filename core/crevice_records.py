@@ -29,7 +29,7 @@ from .executor import TEXEL_CHUNK, slices
 from .interpolation import texel_values
 from .irradiance_cache import IrradianceCache, Zones
 from .refinement import refine_records
-from .sampling import to_world
+from .sampling import pattern_directions
 
 
 def _pattern() -> np.ndarray:
@@ -65,7 +65,7 @@ def _inverse_distances(caster, p: np.ndarray, n: np.ndarray, reach: float | None
     rays = len(pattern)
     origin = np.repeat(p, rays, axis=0)
     normal = np.repeat(n, rays, axis=0)
-    d = to_world(pattern[None], n[:, None]).reshape(-1, 3)  # one frame per point, not per ray
+    d = pattern_directions(pattern, n).reshape(-1, 3)  # one frame per point, not per ray
     hits = caster.intersect(origin, d, normals=normal, unit=True, t_max=reach)
     missed = 0.0 if reach is None else np.nan
     return np.where(hits.hit, 1.0 / np.maximum(hits.t, 1e-30), missed).reshape(len(p), rays)

@@ -114,6 +114,8 @@ def _declare(lib) -> None:
     lib.pdic_concentric_polar.argtypes = [_PTR, _I64, _PTR, _PTR]
     lib.pdic_cosine_directions.restype = None
     lib.pdic_cosine_directions.argtypes = [_PTR] * 4 + [_I64, _PTR]
+    lib.pdic_pattern_directions.restype = None
+    lib.pdic_pattern_directions.argtypes = [_PTR, _I64, _PTR, _I64, _PTR]
     lib.pdic_accumulate.restype = None
     lib.pdic_accumulate.argtypes = [_PTR, _I64] + [_PTR] * 4 + [_I64] + [_PTR] * 4
 
@@ -272,6 +274,14 @@ def cosine_directions(lib, u: np.ndarray, n: np.ndarray) -> np.ndarray:
     r, phi, d = np.empty(m), np.empty(m), np.empty((m, 3))
     lib.pdic_concentric_polar(_ptr(u), m, _ptr(r), _ptr(phi))
     lib.pdic_cosine_directions(_ptr(r), _ptr(np.cos(phi)), _ptr(np.sin(phi)), _ptr(n), m, _ptr(d))
+    return d
+
+
+def pattern_directions(lib, w_local: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """:func:`core.sampling.pattern_directions` in C: (m, r, 3), the same values."""
+    w_local, n = _f64(w_local), _f64(n)
+    d = np.empty((len(n), len(w_local), 3))
+    lib.pdic_pattern_directions(_ptr(w_local), len(w_local), _ptr(n), len(n), _ptr(d))
     return d
 
 
@@ -584,14 +594,16 @@ def _self_check_gathering(lib, rng) -> str | None:
 def _self_check_directions(lib, rng) -> bool:
     """Cosine-weighted directions about normals of every sign (z = 0, -0.0 and -1 among them), at u on the disk's
     centre and its diagonals, to the bit."""
-    from .sampling import cosine_directions_numpy
+    from .sampling import cosine_directions_numpy, pattern_directions_numpy
 
     n = rng.normal(size=(64, 3))
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     n[:4] = [[0.0, 0.0, -1.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, -0.0]]
     u = rng.random((64, 2))
     u[:3] = [[0.5, 0.5], [0.25, 0.25], [0.0, 0.75]]
-    return _same_bits(cosine_directions_numpy(u, n), cosine_directions(lib, u, n))
+    pattern = cosine_directions_numpy(u[:5], np.tile([0.0, 0.0, 1.0], (5, 1)))
+    return (_same_bits(cosine_directions_numpy(u, n), cosine_directions(lib, u, n))
+            and _same_bits(pattern_directions_numpy(pattern, n), pattern_directions(lib, pattern, n)))
 
 
 def _self_check_member_sums(lib, rng) -> bool:

@@ -170,6 +170,26 @@ def test_cosine_directions_equal_numpy():
     assert (dots(want[finite], n[finite]) >= 0.0).all()
 
 
+def test_pattern_directions_equal_numpy():
+    """The crevice test's fixed pattern turned into each sample's frame, normals of every sign, NaN kept."""
+    from pdic.core.crevice_records import _pattern
+    from pdic.core.sampling import pattern_directions_numpy
+
+    rng = np.random.default_rng(21)
+    n = _unit(rng.normal(size=(20000, 3)))
+    n[::7, 2] = rng.choice([0.0, -0.0, 1e-300, -1e-300], size=len(n[::7]))
+    n[::7] = _unit(n[::7])
+    n[1::97] = [0.0, 0.0, -1.0]
+    n[2::97] = np.nan
+    for pattern in (_pattern(), rng.normal(size=(3, 3))):
+        want = pattern_directions_numpy(pattern, n)
+        got = native_kernels.pattern_directions(LIB, pattern, n)
+        assert want.shape == got.shape == (len(n), len(pattern), 3)
+        assert np.array_equal(want.view(np.uint64), got.view(np.uint64))
+    finite = np.isfinite(want).all(axis=(1, 2))
+    assert np.allclose(np.linalg.norm(want[finite], axis=2), np.linalg.norm(pattern, axis=1))
+
+
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_algorithm_1_sums_equal_numpy(dtype):
     """Algorithm 1's last line over a block's pairs: pass 2 sums into the photons' float32 fields, the hole

@@ -270,6 +270,20 @@ PDIC_EXPORT void pdic_concentric_polar(const double *u, int64_t m, double *r_out
     }
 }
 
+/* core.sampling.orthonormal_basis: Duff et al.'s tangents t1, t2 of the unit normal n, in numpy's order. */
+static inline void duff_tangents(const double *n, double *t1, double *t2) {
+    double x = n[0], y = n[1], z = n[2];
+    double sign = z >= 0.0 ? 1.0 : -1.0;
+    double a = -1.0 / (sign + z);
+    double b = (x * y) * a;
+    t1[0] = 1.0 + ((sign * x) * x) * a;
+    t1[1] = sign * b;
+    t1[2] = (-sign) * x;
+    t2[0] = b;
+    t2[1] = sign + (y * y) * a;
+    t2[2] = -y;
+}
+
 /* core.sampling.cosine_directions: the cosine-weighted direction (core.sampling.cosine_hemisphere) at the disk
  * point r (cos phi, sin phi) turned into the frame of unit normals n (m, 3) (core.sampling.to_world: Duff et
  * al.'s tangents t1, t2, then (w_x t1 + w_y t2) + w_z n a component at a time). */
@@ -280,13 +294,24 @@ PDIC_EXPORT void pdic_cosine_directions(const double *r, const double *cos_phi, 
         double v = 1.0 - (wx * wx + wy * wy);
         double wz = sqrt(v > 0.0 || v != v ? v : 0.0);  /* np.maximum(0.0, v): NaN kept */
         const double *z3 = n + 3 * i;
-        double x = z3[0], y = z3[1], z = z3[2];
-        double sign = z >= 0.0 ? 1.0 : -1.0;
-        double a = -1.0 / (sign + z);
-        double b = (x * y) * a;
-        double t1[3] = {1.0 + ((sign * x) * x) * a, sign * b, (-sign) * x};
-        double t2[3] = {b, sign + (y * y) * a, -y};
+        double t1[3], t2[3];
+        duff_tangents(z3, t1, t2);
         for (int c = 0; c < 3; ++c) d_out[3 * i + c] = (wx * t1[c] + wy * t2[c]) + wz * z3[c];
+    }
+}
+
+/* core.sampling.pattern_directions: the r local directions w (r, 3) turned into the frame of each unit normal
+ * n (m, 3) as core.sampling.to_world does, into d_out (m, r, 3). */
+PDIC_EXPORT void pdic_pattern_directions(const double *w, int64_t r, const double *n, int64_t m, double *d_out) {
+    for (int64_t i = 0; i < m; ++i) {
+        const double *z3 = n + 3 * i;
+        double t1[3], t2[3];
+        duff_tangents(z3, t1, t2);
+        for (int64_t k = 0; k < r; ++k) {
+            const double *v = w + 3 * k;
+            double *d = d_out + 3 * (i * r + k);
+            for (int c = 0; c < 3; ++c) d[c] = (v[0] * t1[c] + v[1] * t2[c]) + v[2] * z3[c];
+        }
     }
 }
 
