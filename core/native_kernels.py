@@ -1,6 +1,7 @@
 """Compiled kernels of Equation 3 (with its records' wall sectors), the albedo at hits, pass 3's gathering
-rays and hits, its records' E_k and gradients from their cells, point lights' shadow rays and the lookups'
-Morton order, with the numpy code they replace as the fallback.
+rays and hits, its records' E_k and gradients from their cells, point lights' shadow rays, soft lamps' samples,
+the lookups' Morton order, the bake's cosine-weighted ray directions and Algorithm 1's sums, with the numpy code
+they replace as the fallback.
 
 Equation 3 is looked up at every texel sample, at every gathering ray's hit and at every hit-grid cell,
 and its numpy form spends most of its time making arrays per (point, record) pair; the albedo is read at
@@ -573,7 +574,7 @@ def _self_check_gathering(lib, rng) -> str | None:
         return "gathering rays differ"
     if not _self_check_directions(lib, rng):
         return "cosine directions differ"
-    if not _self_check_member_sums(lib, rng):
+    if not _self_check_accumulate(lib, rng):
         return "Algorithm 1's sums differ"
     w, d, o = want
     t = np.where(rng.random(40) < 0.3, np.inf, rng.uniform(0.0, 2.0, 40))
@@ -592,8 +593,8 @@ def _self_check_gathering(lib, rng) -> str | None:
 
 
 def _self_check_directions(lib, rng) -> bool:
-    """Cosine-weighted directions about normals of every sign (z = 0, -0.0 and -1 among them), at u on the disk's
-    centre and its diagonals, to the bit."""
+    """Cosine-weighted directions, and a pattern's directions, about normals of every sign (z = 0, -0.0 and -1
+    among them), at u on the disk's centre and its diagonals, to the bit."""
     from .sampling import cosine_directions_numpy, pattern_directions_numpy
 
     n = rng.normal(size=(64, 3))
@@ -606,7 +607,7 @@ def _self_check_directions(lib, rng) -> bool:
             and _same_bits(pattern_directions_numpy(pattern, n), pattern_directions(lib, pattern, n)))
 
 
-def _self_check_member_sums(lib, rng) -> bool:
+def _self_check_accumulate(lib, rng) -> bool:
     """Algorithm 1's sums over candidates met once, many times or not at all, into float32 and float64 sums."""
     from .irradiance_cache import _accumulate_numpy
 
