@@ -35,6 +35,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from . import native_kernels
 from .constants import STREAM_DIRECT_EDGE
 from .executor import TEXEL_CHUNK, slices
 from .lamp_weights import weight_chunks
@@ -259,6 +260,17 @@ def _trace_hard(out: DirectResult, caster: RayCaster, p, n_s, n_g, light) -> Non
     vis = np.where(lit, caster.transmittance(start, directions, t_max, unit=True), 0.0)
     out.shadow_rays["point"] += len(rows)
     out.skipped[light.name] = out.skipped.get(light.name, 0) + len(p) - len(rows)
+    lib = native_kernels.library()
+    if lib is None:
+        _add_hard_light_numpy(out, rows, P, weight, vis)
+    else:
+        native_kernels.add_hard_light(lib, out.E, out.edge_lit, out.edge_open, rows, P, weight, vis)
+
+
+def _add_hard_light_numpy(out: DirectResult, rows: np.ndarray, P: np.ndarray, weight: np.ndarray, vis: np.ndarray
+                          ) -> None:
+    """A point light of colour P's light at the points ``rows`` (distinct) of ``out``, weight x transmittance
+    each, added to E and, when ``out`` keeps it, to the edge evidence (the compiled kernel's reference)."""
     lit_light = P * (weight * vis)[:, None]
     out.E[rows] += lit_light
     if out.edge_lit is not None:

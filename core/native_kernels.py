@@ -117,6 +117,8 @@ def _declare(lib) -> None:
     lib.pdic_cosine_directions.argtypes = [_PTR] * 4 + [_I64, _PTR]
     lib.pdic_pattern_directions.restype = None
     lib.pdic_pattern_directions.argtypes = [_PTR, _I64, _PTR, _I64, _PTR]
+    lib.pdic_add_hard_light.restype = None
+    lib.pdic_add_hard_light.argtypes = [_PTR] * 4 + [_I64] + [_PTR] * 3
     lib.pdic_accumulate.restype = None
     lib.pdic_accumulate.argtypes = [_PTR, _I64] + [_PTR] * 4 + [_I64] + [_PTR] * 4
 
@@ -360,6 +362,25 @@ def point_light_rays(lib, p, n_s, n_g, c, epsilon: float) -> tuple:
     k = lib.pdic_point_light_rays(_ptr(p), _ptr(n_s), _ptr(n_g), m, _ptr(c), float(epsilon), _ptr(rows), _ptr(weight),
                                   _ptr(start), _ptr(directions), _ptr(t_max), _ptr(lit))
     return rows[:k], weight[:k], start[:k], directions[:k], t_max[:k], lit[:k].view(bool)
+
+
+def add_hard_light(lib, E: np.ndarray, edge_lit: np.ndarray | None, edge_open: np.ndarray | None, rows: np.ndarray,
+                   P: np.ndarray, weight: np.ndarray, vis: np.ndarray) -> None:
+    """:func:`core.direct._add_hard_light_numpy` in C: the same sums in E (and edge_lit, edge_open), in place."""
+    for a in (E, edge_lit, edge_open):
+        if a is not None and not (a.dtype == np.float64 and a.flags.c_contiguous and a.shape == E.shape
+                                  and a.ndim == 2 and a.shape[1] == 3):
+            raise ValueError("add_hard_light: the sums must be C-contiguous float64 (n, 3)")
+    if (edge_lit is None) != (edge_open is None):
+        raise ValueError("add_hard_light: edge_lit and edge_open come together")
+    rows, weight, vis = _i64(rows), _f64(weight), _f64(vis)
+    k = len(rows)
+    if len(weight) != k or len(vis) != k:
+        raise ValueError("add_hard_light: rows, weights and transmittances disagree")
+    if k and not (0 <= int(rows.min()) and int(rows.max()) < len(E)):
+        raise ValueError("add_hard_light: a row outside the sums")
+    lib.pdic_add_hard_light(_ptr(E), _ptr(edge_lit), _ptr(edge_open), _ptr(rows), k, _ptr(_vec3(P)), _ptr(weight),
+                            _ptr(vis))
 
 
 def disk_samples(lib, q, pk, nsk, ngk, n_disk) -> tuple:
@@ -673,7 +694,27 @@ def _self_check_lights(lib, rng) -> str | None:
     want = point_light_rays_numpy(p, n_s, n_g, c, 1e-3)
     if not all(np.array_equal(x, y) for x, y in zip(want, point_light_rays(lib, p, n_s, n_g, c, 1e-3))):
         return "point light rays differ"
+    if not _self_check_hard_light(lib, rng):
+        return "a point light's sums differ"
     return _self_check_soft_lamps(lib, rng) or _self_check_hits(lib, rng) or _self_check_morton(lib, rng)
+
+
+def _self_check_hard_light(lib, rng) -> bool:
+    """A point light's light added at some rows of E, with the edge evidence and without, to the bit."""
+    from .direct import DirectResult, _add_hard_light_numpy
+
+    rows = np.sort(rng.choice(40, 25, replace=False))
+    P, weight, vis = rng.uniform(0, 1e3, 3), rng.random(25) * 1e-3, np.where(rng.random(25) < 0.3, 0.0, rng.random(25))
+    for edges in (False, True):
+        sums = [rng.random((40, 3)) for _ in range(3 if edges else 1)] + [None, None][: 0 if edges else 2]
+        want = DirectResult(*sums)
+        got = DirectResult(*(None if a is None else a.copy() for a in sums))
+        _add_hard_light_numpy(want, rows, P, weight, vis)
+        add_hard_light(lib, got.E, got.edge_lit, got.edge_open, rows, P, weight, vis)
+        if not all(a is None or _same_bits(a, b) for a, b in zip((want.E, want.edge_lit, want.edge_open),
+                                                                 (got.E, got.edge_lit, got.edge_open))):
+            return False
+    return True
 
 
 def _self_check_soft_lamps(lib, rng) -> str | None:

@@ -411,6 +411,37 @@ def test_area_light_samples_and_facing_points_equal_numpy():
         native_kernels.area_samples(LIB, xy[:-1], pk, nsk, ngk, c, N, U, V, 16.0, 2e-4)
 
 
+@pytest.mark.parametrize("edges", [False, True])
+def test_a_point_lights_sums_equal_numpy(edges):
+    """A point light's light at the points its rays left from (rows distinct, in order), weights over decades,
+    blocked rays, into E and the edge evidence."""
+    from pdic.core.direct import DirectResult, _add_hard_light_numpy
+
+    rng = np.random.default_rng(22)
+    n, k = 30000, 20000
+    rows = np.sort(rng.choice(n, k, replace=False))
+    P = np.array([3000.0, 1e-3, 0.0])
+    weight = 10.0 ** rng.uniform(-9, 1, k)
+    vis = np.where(rng.random(k) < 0.3, 0.0, rng.random(k))
+    sums = [rng.random((n, 3)) * 10.0 ** rng.uniform(-6, 3, (n, 1)) for _ in range(3)]
+    if not edges:
+        sums[1:] = [None, None]
+    E_before = sums[0].copy()
+    want = DirectResult(*sums)
+    got = DirectResult(*(None if a is None else a.copy() for a in sums))
+    _add_hard_light_numpy(want, rows, P, weight, vis)
+    native_kernels.add_hard_light(LIB, got.E, got.edge_lit, got.edge_open, rows, P, weight, vis)
+    for a, b in zip((want.E, want.edge_lit, want.edge_open), (got.E, got.edge_lit, got.edge_open)):
+        assert (a is None) == (b is None) and (a is None or np.array_equal(a, b))
+    assert (want.edge_lit is not None) == edges
+    untouched = np.setdiff1d(np.arange(n), rows)
+    assert not np.array_equal(want.E, E_before) and np.array_equal(got.E[untouched], E_before[untouched])
+    with pytest.raises(ValueError, match="outside"):
+        native_kernels.add_hard_light(LIB, got.E, None, None, np.array([n]), P, weight[:1], vis[:1])
+    with pytest.raises(ValueError, match="C-contiguous"):
+        native_kernels.add_hard_light(LIB, got.E.astype(np.float32), None, None, rows, P, weight, vis)
+
+
 def test_soft_falloff_lamp_samples_equal_numpy():
     from pdic.core.lights import disk_samples_numpy
 

@@ -421,6 +421,25 @@ PDIC_EXPORT int64_t pdic_point_light_rays(const double *p, const double *n_s, co
     return k;
 }
 
+/* core.direct._add_hard_light_numpy: a point light's colour P (3) times each lit point's weight w and
+ * transmittance v, P (w v), added to E at its row (rows (k,) distinct, E (n, 3)); with edge_lit and edge_open
+ * (or NULL) the same to edge_lit and P w to edge_open. */
+PDIC_EXPORT void pdic_add_hard_light(double *E, double *edge_lit, double *edge_open, const int64_t *rows, int64_t k,
+                                     const double *P, const double *w, const double *v) {
+    for (int64_t i = 0; i < k; ++i) {
+        double *e = E + 3 * rows[i];
+        double share = w[i] * v[i];
+        for (int c = 0; c < 3; ++c) {
+            double lit = P[c] * share;
+            e[c] = e[c] + lit;
+            if (edge_lit) {
+                edge_lit[3 * rows[i] + c] = edge_lit[3 * rows[i] + c] + lit;
+                edge_open[3 * rows[i] + c] = edge_open[3 * rows[i] + c] + P[c] * w[i];
+            }
+        }
+    }
+}
+
 /* a . b of 3-vectors summed left to right, as core.vectors.dots. */
 static inline double dot3(const double *a, const double *b) { return (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]; }
 
