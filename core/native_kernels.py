@@ -182,6 +182,11 @@ def _i64(a) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.int64)
 
 
+def _within(index: np.ndarray, n: int) -> bool:
+    """Whether every entry of ``index`` lies in [0, n): a kernel writing at them must not write past its array."""
+    return len(index) == 0 or (0 <= int(index.min()) and int(index.max()) < n)
+
+
 def zone_pairs(lib, grid, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:meth:`core.zone_grid.ZoneGrid.pairs` in C (the grid's own arrays, the same pairs in the same order)."""
     q = _f64(q)
@@ -301,7 +306,7 @@ def accumulate(lib, w_sum: np.ndarray, E_sum: np.ndarray, members: np.ndarray, w
         raise ValueError("slot_of must be C-contiguous int64, one per candidate")
     members, w, E_k = _i64(members), _f64(w), _f64(E_k)
     m = len(members)
-    if m and not (0 <= int(members.min()) and int(members.max()) < len(w_sum)):
+    if not _within(members, len(w_sum)):
         raise ValueError("accumulate: a candidate outside the sums")
     lib.pdic_accumulate(_ptr(members), m, _ptr(w), _ptr(E_k), _ptr(w_sum), _ptr(E_sum), int(single), _ptr(slot_of),
                         _ptr(np.empty(m, np.int64)), _ptr(np.empty(m)), _ptr(np.empty((m, 3))))
@@ -348,7 +353,7 @@ def add_rows3(lib, table: np.ndarray, rows: np.ndarray, values: np.ndarray) -> N
     if (table.dtype != np.float64 or table.ndim != 2 or table.shape[1] < 3 or not table.flags.c_contiguous
             or not table.flags.writeable or values.shape != (len(rows), 3)):
         raise ValueError(f"add_rows3: a {table.dtype}{table.shape} table, {values.shape} values for {len(rows)} rows")
-    if len(rows) and (rows.min() < 0 or rows.max() >= len(table)):
+    if not _within(rows, len(table)):
         raise IndexError(f"add_rows3: rows outside the table's {len(table)}")
     lib.pdic_add_rows3(_ptr(table), table.shape[1], _ptr(rows), _ptr(values), len(rows), _ptr(np.empty_like(values)))
 
@@ -377,7 +382,7 @@ def add_hard_light(lib, E: np.ndarray, edge_lit: np.ndarray | None, edge_open: n
     k = len(rows)
     if len(weight) != k or len(vis) != k:
         raise ValueError("add_hard_light: rows, weights and transmittances disagree")
-    if k and not (0 <= int(rows.min()) and int(rows.max()) < len(E)):
+    if not _within(rows, len(E)):
         raise ValueError("add_hard_light: a row outside the sums")
     lib.pdic_add_hard_light(_ptr(E), _ptr(edge_lit), _ptr(edge_open), _ptr(rows), k, _ptr(_vec3(P)), _ptr(weight),
                             _ptr(vis))

@@ -689,11 +689,8 @@ PDIC_EXPORT void pdic_pair_walls(const int64_t *rows, const int64_t *records, in
         int64_t r = records[k];
         const double *q = p + 3 * rows[k], *c = p_k + 3 * r, *nk = n_k + 3 * r;
         double d[3] = {q[0] - c[0], q[1] - c[1], q[2] - c[2]};
-        double sign = nk[2] >= 0.0 ? 1.0 : -1.0;
-        double a = -1.0 / (sign + nk[2]);
-        double b = nk[0] * nk[1] * a;
-        double t1[3] = {1.0 + sign * nk[0] * nk[0] * a, sign * b, -sign * nk[0]};
-        double t2[3] = {b, sign + nk[1] * nk[1] * a, -nk[1]};
+        double t1[3], t2[3];
+        duff_tangents(nk, t1, t2);
         /* np.einsum("ij,ij->i")'s order here: (first + last) + middle. */
         double x = (d[0] * t1[0] + d[2] * t1[2]) + d[1] * t1[1];
         double y = (d[0] * t2[0] + d[2] * t2[2]) + d[1] * t2[1];
