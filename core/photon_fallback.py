@@ -54,8 +54,7 @@ class NearestPhotons:
             table = self._tables[k] = np.full((len(self.q), k), -1, np.int64)
         ask = np.unique(rows[table[rows, 0] < 0])
         if len(ask):
-            _, found = self.density.tree.query(self.q[ask], k=k)
-            table[ask] = np.asarray(found, np.int64).reshape(len(ask), k)
+            table[ask] = self.density.k_nearest(self.q[ask], k)
         return table[rows]
 
 
