@@ -1,7 +1,7 @@
 """Compiled kernels of Equation 3 (with its records' wall sectors), the albedo at hits, pass 3's gathering
 rays and hits, its records' E_k and gradients from their cells, point lights' shadow rays, soft lamps' samples,
-the lookups' Morton order, the bake's cosine-weighted ray directions and Algorithm 1's sums, with the numpy code
-they replace as the fallback.
+the lookups' Morton order, the bake's cosine-weighted ray directions, Algorithm 1's sums and the nearest-photon
+fallback's k nearest photons, with the numpy (or scipy) code they replace as the fallback.
 
 Equation 3 is looked up at every texel sample, at every gathering ray's hit and at every hit-grid cell,
 and its numpy form spends most of its time making arrays per (point, record) pair; the albedo is read at
