@@ -6,7 +6,6 @@ later passes.
 """
 from __future__ import annotations
 
-import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from itertools import chain
@@ -14,7 +13,6 @@ from itertools import chain
 import numpy as np
 from scipy.spatial import cKDTree
 
-from . import native_kernels
 from .constants import (COVERAGE_DEPTH, COVERAGE_LIFT, R_K_DISTANCE_FLOOR, R_K_SAME_SIDE_COS, R_OVERSAMPLE,
                         SAME_SURFACE_COS, WALL_MASS_FLOOR)
 from .executor import row_chunks, slices
@@ -38,8 +36,7 @@ class PhotonDensity:
         self.workers = max(1, int(workers))
         # Memory: the kd-tree keeps the only float64 copy of the positions (tree.data);
         # normals, powers and last hits stay float32 (12 bytes each per photon), so
-        # 4M photons fit in 1 GB with their trees through pass 2 (bench/ measures the peak).
-        # The nearest-photon fallback's compiled tree adds 32 bytes a photon in pass 3.
+        # 4M photons fit in 1 GB with their trees (bench/ measures the peak).
         self.tree = cKDTree(photons.p, leafsize=16, balanced_tree=False, compact_nodes=False)
         self.p = self.tree.data
         self.n = photons.n
@@ -49,29 +46,6 @@ class PhotonDensity:
         self.is_indirect = photons.is_indirect
         self.queries = 0
         self._sides = None
-        self._nearest_tree = None  # the compiled k nearest's tree, built by the first query that needs it
-        self._lock = threading.Lock()
-
-    def __getstate__(self):  # a Dask worker builds its own compiled tree if it needs one
-        return {k: v for k, v in self.__dict__.items() if k not in ("_lock", "_nearest_tree")}
-
-    def __setstate__(self, state):
-        self.__dict__.update(state, _nearest_tree=None, _lock=threading.Lock())
-
-    def k_nearest(self, q: np.ndarray, k: int) -> np.ndarray:
-        """(m, k) int64 the k nearest photons of points q (m, 3), nearest first (k at most the photons).
-
-        The nearest-photon fallback asks millions of points (3.8 M at Sponza 16/m): compiled
-        (:func:`~core.native_kernels.kd_nearest`, its own tree over the photons, 91 MB for 2.85 M of them) when
-        the library is there, 1.0-1.2 us a point against scipy's 1.6-1.9; scipy's tree answers otherwise."""
-        lib = native_kernels.library()
-        if lib is None or k > native_kernels.KD_MAX_K:
-            _, found = self.tree.query(q, k=k)
-            return np.asarray(found, np.int64).reshape(len(q), k)
-        with self._lock:
-            if self._nearest_tree is None:
-                self._nearest_tree = native_kernels.kd_tree(lib, self.p)
-        return native_kernels.kd_nearest(lib, self._nearest_tree, q, k)
 
     def harmonic_mean_distances(self, p_k: np.ndarray, n_k: np.ndarray, count: int, R_max: float) -> np.ndarray:
         """(B,) float64 R_k for B records (p_k, n_k (B, 3)): Figure 3's harmonic mean; R_max where none fit.

@@ -1,7 +1,7 @@
 """Compiled kernels of Equation 3 (with its records' wall sectors), the albedo at hits, pass 3's gathering
 rays and hits, its records' E_k and gradients from their cells, point lights' shadow rays, soft lamps' samples,
-the lookups' Morton order, the bake's cosine-weighted ray directions, Algorithm 1's sums and the nearest-photon
-fallback's k nearest photons, with the numpy (or scipy) code they replace as the fallback.
+the lookups' Morton order, the bake's cosine-weighted ray directions and Algorithm 1's sums, with the numpy code
+they replace as the fallback.
 
 Equation 3 is looked up at every texel sample, at every gathering ray's hit and at every hit-grid cell,
 and its numpy form spends most of its time making arrays per (point, record) pair; the albedo is read at
@@ -26,12 +26,11 @@ import ctypes
 import os
 import platform
 import threading
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-VERSION = 15
+VERSION = 14
 """The C library's ``pdic_native_version()`` this module calls; a library of another version is not used."""
 NATIVE_DIR = Path(__file__).resolve().parent / "native"
 SUFFIX = {"linux": ".so", "windows": ".dll", "macos": ".dylib"}
@@ -122,12 +121,6 @@ def _declare(lib) -> None:
     lib.pdic_add_hard_light.argtypes = [_PTR] * 4 + [_I64] + [_PTR] * 3
     lib.pdic_accumulate.restype = None
     lib.pdic_accumulate.argtypes = [_PTR, _I64] + [_PTR] * 4 + [_I64] + [_PTR] * 4
-    lib.pdic_kd_nodes.restype = _I64
-    lib.pdic_kd_nodes.argtypes = [_I64]
-    lib.pdic_kd_build.restype = None
-    lib.pdic_kd_build.argtypes = [_PTR, _PTR, _I64, _PTR, _PTR]
-    lib.pdic_kd_nearest.restype = None
-    lib.pdic_kd_nearest.argtypes = [_PTR, _PTR, _I64, _PTR, _PTR, _PTR, _I64, _I64, _PTR]
 
 
 def _load():
@@ -539,43 +532,6 @@ def morton_order(lib, p: np.ndarray) -> np.ndarray:
     return order
 
 
-KD_MAX_K = 64
-"""The most neighbours :func:`kd_nearest` finds (pdic_native.c's PDIC_KD_MAX_K)."""
-
-
-@dataclass(frozen=True)
-class KdTree:
-    """pdic_kd_build's tree over n points: the points and their indices in the tree's order, each node's split
-    value and axis (-1 at a leaf). Holds a float64 copy of the points (24 bytes each, 8 more for the index)."""
-
-    points: np.ndarray
-    index: np.ndarray
-    split: np.ndarray
-    axis: np.ndarray
-
-
-def kd_tree(lib, p: np.ndarray) -> KdTree:
-    """A kd-tree over points p (n, 3) for :func:`kd_nearest`."""
-    points = _points(p).copy()
-    nodes = lib.pdic_kd_nodes(len(points))
-    tree = KdTree(points, np.arange(len(points), dtype=np.int64), np.zeros(nodes), np.full(nodes, -1, np.int8))
-    lib.pdic_kd_build(_ptr(tree.points), _ptr(tree.index), len(points), _ptr(tree.split), _ptr(tree.axis))
-    return tree
-
-
-def kd_nearest(lib, tree: KdTree, q: np.ndarray, k: int) -> np.ndarray:
-    """(m, k) int64 the indices of the k nearest of the tree's points to each of q (m, 3), nearest first: scipy's
-    ``cKDTree(p).query(q, k)[1]`` (reshaped to (m, k)), but for photons at exactly the same distance from a point,
-    which go to the lower index here."""
-    q = _points(q)
-    if not 1 <= k <= min(KD_MAX_K, len(tree.points)):
-        raise ValueError(f"k must lie in [1, {min(KD_MAX_K, len(tree.points))}], got {k}")
-    out = np.empty((len(q), k), np.int64)
-    lib.pdic_kd_nearest(_ptr(tree.points), _ptr(tree.index), len(tree.points), _ptr(tree.split), _ptr(tree.axis),
-                        _ptr(q), len(q), k, _ptr(out))
-    return out
-
-
 def _self_check(lib) -> str | None:
     """Compare the library with the numpy functions on a small random problem, to the bit.
 
@@ -818,19 +774,6 @@ def _self_check_morton(lib, rng) -> str | None:
             return "Morton keys differ"
         if not np.array_equal(morton_order(lib, q), np.argsort(morton_keys_numpy(q), kind="stable")):
             return "Morton order differs"
-    return _self_check_kd(lib, rng, p, flat)
-
-
-def _self_check_kd(lib, rng, *clouds) -> str | None:
-    """The k nearest against scipy's kd-tree, over point clouds without two points at one distance from a query."""
-    from scipy.spatial import cKDTree
-
-    for p in clouds:
-        q = np.concatenate([p[:40] + rng.normal(scale=0.01, size=(40, 3)), rng.normal(size=(40, 3)) * 30.0])
-        tree = kd_tree(lib, p)
-        for k in (1, 8, 17):
-            if not np.array_equal(kd_nearest(lib, tree, q, k), cKDTree(p).query(q, k=k)[1].reshape(len(q), k)):
-                return "k nearest differ"
     return None
 
 

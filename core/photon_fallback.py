@@ -54,7 +54,8 @@ class NearestPhotons:
             table = self._tables[k] = np.full((len(self.q), k), -1, np.int64)
         ask = np.unique(rows[table[rows, 0] < 0])
         if len(ask):
-            table[ask] = self.density.k_nearest(self.q[ask], k)
+            _, found = self.density.tree.query(self.q[ask], k=k)
+            table[ask] = np.asarray(found, np.int64).reshape(len(ask), k)
         return table[rows]
 
 

@@ -6,22 +6,18 @@ order of operations (magnitudes over many decades, NaN and far-away points), and
 with the library against one with the numpy kernels.
 """
 import copy
-import pickle
 from dataclasses import replace
 
 import numpy as np
 import pytest
-from scipy.spatial import cKDTree
 
 from pdic.core import native_kernels, real_rays
 from pdic.core.albedo import albedo_numpy, bilinear_numpy
-from pdic.core.density import PhotonDensity
 from pdic.core.gather_cells import CellSums
 from pdic.core.hemisphere import Hemisphere
 from pdic.core.interpolation import equation3_sums, ward_pairs
-from pdic.core.photons import trace_photons
 from pdic.core.pipeline import bake
-from pdic.core.rays import Hits, RayCaster
+from pdic.core.rays import Hits
 from pdic.core.settings import preset
 from pdic.core.vectors import dots
 from pdic.core.zone_grid import ZoneGrid, morton_keys_numpy, spatial_order
@@ -361,54 +357,6 @@ def test_morton_keys_and_order_equal_numpy(case):
     assert (case in ("nan", "inf", "inf_column", "one")) == (not keys.any())
     with pytest.raises(ValueError, match=r"\(m, 3\)"):  # the C reads three coordinates a point
         native_kernels.morton_order(LIB, p[:, :2])
-
-
-@pytest.mark.parametrize("case", ["scattered", "flat", "clustered", "few"])
-def test_k_nearest_equal_scipy(case):
-    rng = np.random.default_rng(23)
-    p = rng.normal(size=(20000, 3)) * [1.0, 1e-4, 300.0]
-    if case == "flat":
-        p[:, 2] = 7.0  # an axis of zero extent: the splits take the others
-    elif case == "clustered":
-        p = np.concatenate([rng.normal(size=(19000, 3)) * 1e-3, rng.normal(size=(1000, 3)) * 1e3])
-    elif case == "few":
-        p = p[:5]  # one leaf
-    q = np.concatenate([p[rng.integers(0, len(p), 300)] + rng.normal(scale=1e-3, size=(300, 3)),
-                        rng.normal(size=(100, 3)) * 1e4])
-    tree = native_kernels.kd_tree(LIB, p)
-    assert np.array_equal(np.sort(tree.index), np.arange(len(p)))  # a permutation of the points
-    assert np.array_equal(tree.points, p[tree.index])
-    for k in sorted({k for k in (1, 2, 8, 64, len(p)) if k <= min(64, len(p))}):
-        want = cKDTree(p).query(q, k=k)[1].reshape(len(q), k)
-        assert np.array_equal(native_kernels.kd_nearest(LIB, tree, q, k), want), k
-    with pytest.raises(ValueError, match="k must lie"):
-        native_kernels.kd_nearest(LIB, tree, q, len(p) + 1)
-    with pytest.raises(ValueError, match=r"\(m, 3\)"):
-        native_kernels.kd_nearest(LIB, tree, q[:, :2], 1)
-
-
-def test_k_nearest_break_ties_by_index():
-    rng = np.random.default_rng(24)
-    grid = np.stack(np.meshgrid(*[np.arange(6.0)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
-    p = grid[rng.permutation(len(grid))[np.arange(600) % len(grid)]]  # every point thrice or so, integer spacing
-    q = np.concatenate([rng.integers(0, 6, (50, 3)) + 0.5, rng.integers(0, 6, (50, 3)).astype(float)])
-    got = native_kernels.kd_nearest(LIB, native_kernels.kd_tree(LIB, p), q, 20)
-    d2 = ((q[:, None, :] - p[None, :, :]) ** 2).sum(axis=2)
-    want = np.stack([np.lexsort((np.arange(len(p)), row))[:20] for row in d2])  # by distance, then index
-    assert np.array_equal(got, want)
-
-
-def test_photon_density_k_nearest_with_and_without_the_library(monkeypatch):
-    scene = lamp_box(24)
-    photons, _ = trace_photons(scene, RayCaster(scene.geometry.positions, scene.extent), 4000, 4, seed=5)
-    density = PhotonDensity(photons)
-    q = np.random.default_rng(6).uniform(-1.0, 1.0, (500, 3))
-    compiled = density.k_nearest(q, 8)
-    assert density._nearest_tree is not None
-    monkeypatch.setattr(native_kernels, "library", lambda: None)
-    assert np.array_equal(compiled, density.k_nearest(q, 8))
-    again = pickle.loads(pickle.dumps(density))  # as a Dask worker gets it: its own tree, built when asked
-    assert again._nearest_tree is None and np.array_equal(again.k_nearest(q, 8), compiled)
 
 
 def test_record_walls_equal_numpy():
