@@ -182,6 +182,12 @@ def _i64(a) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.int64)
 
 
+def _writable(a: np.ndarray) -> bool:
+    """Whether a kernel may write into ``a`` in place: C-contiguous and writable (numpy itself refuses to write a
+    read-only array; C would not)."""
+    return a.flags.c_contiguous and a.flags.writeable
+
+
 def _within(index: np.ndarray, n: int) -> bool:
     """Whether every entry of ``index`` lies in [0, n): a kernel writing at them must not write past its array."""
     return len(index) == 0 or (0 <= int(index.min()) and int(index.max()) < n)
@@ -296,11 +302,11 @@ def pattern_directions(lib, w_local: np.ndarray, n: np.ndarray) -> np.ndarray:
 def accumulate(lib, w_sum: np.ndarray, E_sum: np.ndarray, members: np.ndarray, w: np.ndarray, E_k: np.ndarray,
                slot_of: np.ndarray) -> bool:
     """:func:`core.irradiance_cache._accumulate_numpy` in C, in place, the same sums; False (nothing done) where
-    w_sum (c,) and E_sum (c, 3) are not both C-contiguous float32 or both float64. slot_of : (c,) int64 all -1,
-    scratch the kernel leaves all -1."""
+    w_sum (c,) and E_sum (c, 3) are not both writable C-contiguous float32 or both float64. slot_of : (c,) int64
+    all -1, scratch the kernel leaves all -1."""
     single = w_sum.dtype == np.float32
-    if not (w_sum.dtype == E_sum.dtype and w_sum.dtype in (np.float32, np.float64) and w_sum.flags.c_contiguous
-            and E_sum.flags.c_contiguous and E_sum.shape == (len(w_sum), 3)):
+    if not (w_sum.dtype == E_sum.dtype and w_sum.dtype in (np.float32, np.float64) and _writable(w_sum)
+            and _writable(E_sum) and E_sum.shape == (len(w_sum), 3)):
         return False
     if not (slot_of.dtype == np.int64 and slot_of.flags.c_contiguous and len(slot_of) == len(w_sum)):
         raise ValueError("slot_of must be C-contiguous int64, one per candidate")
@@ -350,8 +356,8 @@ def add_rows3(lib, table: np.ndarray, rows: np.ndarray, values: np.ndarray) -> N
     """``table[rows, :3] += values`` in place, as numpy does it (a row given twice keeps its last sum): table
     (n, w >= 3) float64 C-contiguous, rows (h,) in [0, n), values (h, 3)."""
     rows, values = _i64(rows), _f64(values)
-    if (table.dtype != np.float64 or table.ndim != 2 or table.shape[1] < 3 or not table.flags.c_contiguous
-            or not table.flags.writeable or values.shape != (len(rows), 3)):
+    if (table.dtype != np.float64 or table.ndim != 2 or table.shape[1] < 3 or not _writable(table)
+            or values.shape != (len(rows), 3)):
         raise ValueError(f"add_rows3: a {table.dtype}{table.shape} table, {values.shape} values for {len(rows)} rows")
     if not _within(rows, len(table)):
         raise IndexError(f"add_rows3: rows outside the table's {len(table)}")
@@ -373,9 +379,9 @@ def add_hard_light(lib, E: np.ndarray, edge_lit: np.ndarray | None, edge_open: n
                    P: np.ndarray, weight: np.ndarray, vis: np.ndarray) -> None:
     """:func:`core.direct._add_hard_light_numpy` in C: the same sums in E (and edge_lit, edge_open), in place."""
     for a in (E, edge_lit, edge_open):
-        if a is not None and not (a.dtype == np.float64 and a.flags.c_contiguous and a.shape == E.shape
-                                  and a.ndim == 2 and a.shape[1] == 3):
-            raise ValueError("add_hard_light: the sums must be C-contiguous float64 (n, 3)")
+        if a is not None and not (a.dtype == np.float64 and _writable(a) and a.shape == E.shape and a.ndim == 2
+                                  and a.shape[1] == 3):
+            raise ValueError("add_hard_light: the sums must be writable C-contiguous float64 (n, 3)")
     if (edge_lit is None) != (edge_open is None):
         raise ValueError("add_hard_light: edge_lit and edge_open come together")
     rows, weight, vis = _i64(rows), _f64(weight), _f64(vis)
@@ -711,7 +717,9 @@ def _self_check_hard_light(lib, rng) -> bool:
     rows = np.sort(rng.choice(40, 25, replace=False))
     P, weight, vis = rng.uniform(0, 1e3, 3), rng.random(25) * 1e-3, np.where(rng.random(25) < 0.3, 0.0, rng.random(25))
     for edges in (False, True):
-        sums = [rng.random((40, 3)) for _ in range(3 if edges else 1)] + [None, None][: 0 if edges else 2]
+        sums = [rng.random((40, 3)) for _ in range(3)]
+        if not edges:
+            sums[1:] = [None, None]
         want = DirectResult(*sums)
         got = DirectResult(*(None if a is None else a.copy() for a in sums))
         _add_hard_light_numpy(want, rows, P, weight, vis)

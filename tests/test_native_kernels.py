@@ -223,6 +223,9 @@ def test_algorithm_1_sums_equal_numpy(dtype):
     other = np.float64 if dtype == np.float32 else np.float32
     assert not native_kernels.accumulate(LIB, got[0].astype(other), got[1], members, w, E_k, slot_of)
     assert not native_kernels.accumulate(LIB, got[0], got[1][:, :2], members, w, E_k, slot_of)  # the caller's numpy
+    frozen = got[0].copy()
+    frozen.flags.writeable = False  # numpy refuses to add into it, and so is left to say so
+    assert not native_kernels.accumulate(LIB, frozen, got[1], members, w, E_k, slot_of)
 
 
 def test_gathering_tallies_equal_numpy():
@@ -440,6 +443,10 @@ def test_a_point_lights_sums_equal_numpy(edges):
         native_kernels.add_hard_light(LIB, got.E, None, None, np.array([n]), P, weight[:1], vis[:1])
     with pytest.raises(ValueError, match="C-contiguous"):
         native_kernels.add_hard_light(LIB, got.E.astype(np.float32), None, None, rows, P, weight, vis)
+    frozen = got.E.copy()
+    frozen.flags.writeable = False  # numpy would refuse to add into it; the kernel must not write it either
+    with pytest.raises(ValueError, match="writable"):
+        native_kernels.add_hard_light(LIB, frozen, None, None, rows, P, weight, vis)
 
 
 def test_soft_falloff_lamp_samples_equal_numpy():
